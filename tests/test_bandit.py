@@ -1,0 +1,294 @@
+"""ULTHO bandit: hand-computed sequences, properties, persistence and every error."""
+
+import json
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from ultho_bandit import ULTHO, format_value, parse_clusters
+
+# ----------------------------------------------------------------------------------------------------------
+# Hand-computed sequences. The bounds in the comments were worked out with a calculator, not with the module.
+# ----------------------------------------------------------------------------------------------------------
+
+
+def test_two_clusters_sequence_with_window_eviction():
+    bandit = ULTHO({"a": [1, 2], "b": [10]}, c=1.0, window=2)
+    # i=1: every bonus is c*sqrt(ln 1 / 1) = 0 and every U = 0 -> earliest cluster, earliest value.
+    assert bandit.select() == ("a", 1)
+    bandit.update(1.0)  # a: N=2, U=1 ; a/1: N=2, U=1
+    # i=2, ln 2 = 0.693147: a = 1 + sqrt(0.693/2) = 1.5887 ; b = 0 + sqrt(0.693/1) = 0.8326 -> a
+    # inside a: value 1 = 1.5887, value 2 = 0.8326 -> 1
+    assert bandit.select() == ("a", 1)
+    s = bandit.scalars()
+    assert s["ultho/ucb/a"] == pytest.approx(1.588705, abs=1e-5)
+    assert s["ultho/bonus/b"] == pytest.approx(0.832555, abs=1e-5)
+    assert s["ultho/ucb/a/2"] == pytest.approx(0.832555, abs=1e-5)
+    assert s["ultho/utility/a/1"] == 1.0
+    bandit.update(-1.0)  # a: window [1, -1], U = 0, N = 3
+    # i=3, ln 3 = 1.098612: a = 0 + sqrt(1.0986/3) = 0.6051 ; b = sqrt(1.0986) = 1.0481 -> b
+    assert bandit.select() == ("b", 10)
+    bandit.update(0.5)  # b: U = 0.5, N = 2
+    # i=4, ln 4 = 1.386294: a = sqrt(1.3863/3) = 0.6798 ; b = 0.5 + sqrt(1.3863/2) = 1.3326 -> b
+    assert bandit.select() == ("b", 10)
+    bandit.update(0.0)  # b: window [0.5, 0], U = 0.25, N = 3
+    # i=5, ln 5 = 1.609438: a = sqrt(1.6094/3) = 0.7324 ; b = 0.25 + 0.7324 = 0.9824 -> b
+    assert bandit.select() == ("b", 10)
+    bandit.update(3.0)  # W = 2 evicts 0.5: window [0, 3], U = 1.5, N = 4
+    assert bandit.utilities() == {"a": 0.0, "b": 1.5}
+    # i=6, ln 6 = 1.791759: a = sqrt(1.7918/3) = 0.7728 ; b = 1.5 + sqrt(1.7918/4) = 2.1693 -> b
+    assert bandit.select() == ("b", 10)
+    assert bandit.scalars()["ultho/ucb/b"] == pytest.approx(2.169283, abs=1e-5)
+    assert bandit.selections() == {"a": 2, "b": 3}  # the pending 6th selection is not counted yet
+    assert bandit.value_selections() == {"a": [2, 0], "b": [3]}
+    assert bandit.cluster_of_interest() == "b"
+    assert bandit.neglected_cluster_of_interest() == "a"
+
+
+def test_value_level_sequence_ties_and_global_log_term():
+    bandit = ULTHO({"lr": [0.1, 0.2, 0.3]}, c=2.0, window=10)
+    utilities = [0.2, 0.1, 0.9, 0.7]
+    chosen = []
+    for u in utilities:
+        chosen.append(bandit.select()[1])
+        bandit.update(u)
+    # i=1 -> 0.1.  i=2: 0.1 -> 0.2 + 2*sqrt(0.6931/2) = 1.3774, 0.2 and 0.3 tie at 2*sqrt(0.6931) = 1.6651
+    # -> the earlier, 0.2.  i=3: 0.1 -> 0.2 + 2*sqrt(1.0986/2) = 1.6823, 0.2 -> 1.5823, 0.3 -> 2.0963 -> 0.3.
+    # i=4: bonus(N=2) = 2*sqrt(1.3863/2) = 1.6651: 1.8651, 1.7651, 0.9 + 1.6651 = 2.5651 -> 0.3.
+    assert chosen == [0.1, 0.2, 0.3, 0.3]
+    # i=5: bonus(N=2) = 2*sqrt(1.6094/2) = 1.7941, bonus(N=3) = 2*sqrt(1.6094/3) = 1.4649
+    # 0.1 -> 1.9941, 0.2 -> 1.8941, 0.3 -> U = (0.9+0.7)/2 = 0.8, 0.8 + 1.4649 = 2.2649 -> 0.3
+    assert bandit.select() == ("lr", 0.3)
+    s = bandit.scalars()
+    assert s["ultho/ucb/lr/0.1"] == pytest.approx(1.994123, abs=1e-5)
+    assert s["ultho/ucb/lr/0.3"] == pytest.approx(2.264894, abs=1e-5)
+    assert s["ultho/count/lr/0.3"] == 2.0
+    assert s["ultho/count/lr"] == 4.0
+    assert s["ultho/utility/lr"] == pytest.approx(0.475)  # mean of all four credits (W = 10)
+    assert s["ultho/selected_cluster"] == 0.0
+    assert s["ultho/selected_value_index"] == 2.0
+    assert s["ultho/selected_value"] == 0.3
+
+
+def test_c_zero_is_greedy_after_first_credit():
+    bandit = ULTHO({"x": [1, 2], "y": [3]}, c=0.0, window=5)
+    assert bandit.select() == ("x", 1)
+    bandit.update(-1.0)  # x's U drops below y's 0 and with c = 0 nothing else counts
+    assert bandit.select() == ("y", 3)
+    bandit.update(-0.5)
+    assert bandit.select() == ("y", 3)  # -0.5 > -1
+
+
+def test_scalar_tags_cover_every_arm():
+    bandit = ULTHO({"learning_rate": [1e-3, 2.5e-3, 5e-3], "minibatch_size": [128, 256, 512]})
+    s = bandit.scalars()
+    assert s["ultho/selected_cluster"] == -1.0 and math.isnan(s["ultho/selected_value"])
+    for kind in ("utility", "bonus", "ucb", "count"):
+        for tag in ("learning_rate", "learning_rate/0.001", "learning_rate/0.0025", "learning_rate/0.005",
+                    "minibatch_size", "minibatch_size/128", "minibatch_size/256", "minibatch_size/512"):
+            assert s[f"ultho/{kind}/{tag}"] == 0.0
+    assert len(s) == 4 * 8 + 3
+    assert all(isinstance(v, float) for v in s.values())
+
+
+def test_coi_noi_ties_go_to_earliest():
+    bandit = ULTHO({"a": [1], "b": [2], "c": [3]}, c=1.0)
+    assert bandit.cluster_of_interest() == "a" and bandit.neglected_cluster_of_interest() == "a"
+    for u in (0.0, 0.0):  # i=1 -> a (all zero); i=2: a = sqrt(ln2/2), b = c = sqrt(ln 2) -> b
+        bandit.select()
+        bandit.update(u)
+    assert bandit.selections() == {"a": 1, "b": 1, "c": 0}
+    assert bandit.cluster_of_interest() == "a"
+    assert bandit.neglected_cluster_of_interest() == "c"
+
+
+def test_format_value_labels():
+    assert format_value(128) == "128"
+    assert format_value(2.5e-4) == "0.00025"
+    assert format_value(1.0) == "1.0"
+    assert format_value(1e-5) == "1e-05"
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Properties
+# ----------------------------------------------------------------------------------------------------------
+
+spaces = st.lists(st.integers(min_value=1, max_value=4), min_size=1, max_size=5).map(
+    lambda sizes: {f"k{i}": [float(j + 10 * i) for j in range(n)] for i, n in enumerate(sizes)}
+)
+utilities = st.lists(st.floats(min_value=-1e3, max_value=1e3, allow_nan=False), min_size=1, max_size=60)
+
+
+@settings(max_examples=150, deadline=None)
+@given(space=spaces, us=utilities, c=st.sampled_from([0.0, 1.0, 5.0]), window=st.integers(1, 12))
+def test_properties_counts_windows_and_argmax(space, us, c, window):
+    bandit = ULTHO(space, c=c, window=window)
+    names = list(space)
+    for step, u in enumerate(us, start=1):
+        name, value = bandit.select()
+        s = bandit.scalars()
+        # The chosen cluster has the highest bound; any cluster before it has a strictly lower one.
+        k = names.index(name)
+        bounds = [s[f"ultho/ucb/{n}"] for n in names]
+        assert bounds[k] == max(bounds) and all(b < bounds[k] for b in bounds[:k])
+        vbounds = [s[f"ultho/ucb/{name}/{format_value(v)}"] for v in space[name]]
+        j = space[name].index(value)
+        assert vbounds[j] == max(vbounds) and all(b < vbounds[j] for b in vbounds[:j])
+        bandit.update(u)
+        counts = bandit.selections()
+        assert sum(counts.values()) == step == bandit.num_selections
+        for n, per_value in bandit.value_selections().items():
+            assert sum(per_value) == counts[n]
+        state = bandit.state_dict()
+        for arm in state["clusters"] + [a for arms in state["values"] for a in arms]:
+            assert len(arm["credits"]) <= window
+            assert len(arm["credits"]) == min(arm["count"] - 1, window)
+
+
+@settings(max_examples=60, deadline=None)
+@given(space=spaces, us=utilities, cut=st.integers(0, 60), pending=st.booleans(), window=st.integers(1, 6))
+def test_state_dict_round_trip_gives_identical_future(space, us, cut, pending, window):
+    cut = min(cut, len(us))
+    original = ULTHO(space, c=1.0, window=window)
+    for u in us[:cut]:
+        original.select()
+        original.update(u)
+    if pending:
+        original.select()
+    restored = ULTHO.from_state_dict(json.loads(json.dumps(original.state_dict())))
+    assert restored.state_dict() == original.state_dict()
+    assert restored.scalars().keys() == original.scalars().keys()
+    for bandit in (original, restored):
+        if not pending:
+            bandit.select()
+    for u in us[cut:] + us:
+        assert original.pending == restored.pending
+        original.update(u)
+        restored.update(u)
+        assert original.select() == restored.select()
+        assert original.scalars() == restored.scalars()
+
+
+def test_load_state_dict_into_existing_bandit():
+    a = ULTHO({"lr": [1, 2, 3]}, c=1.0, window=3)
+    for u in (0.5, 0.1, 0.9):
+        a.select()
+        a.update(u)
+    b = ULTHO({"lr": [1, 2, 3]}, c=1.0, window=3)
+    b.load_state_dict(a.state_dict())
+    assert b.select() == a.select()
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Errors
+# ----------------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "space, c, window, message",
+    [
+        ({}, 5.0, 10, "empty search space"),
+        ({"lr": []}, 5.0, 10, "'lr' has no candidate values"),
+        ({"lr": [0.1, 0.1]}, 5.0, 10, "lists the value 0.1 twice"),
+        ({"mb": [128, 128.0]}, 5.0, 10, "twice"),
+        ({"lr": [0.1, float("nan")]}, 5.0, 10, "not finite"),
+        ({"lr": [0.1, float("inf")]}, 5.0, 10, "not finite"),
+        ({"lr": ["fast"]}, 5.0, 10, "not a number"),
+        ({"lr": [0.1]}, -1.0, 10, "c=-1.0"),
+        ({"lr": [0.1]}, float("inf"), 10, "c=inf"),
+        ({"lr": [0.1]}, float("nan"), 10, "c=nan"),
+        ({"lr": [0.1]}, 5.0, 0, "window=0"),
+        ({"lr": [0.1]}, 5.0, 2.5, "window=2.5"),
+    ],
+)
+def test_construction_errors(space, c, window, message):
+    with pytest.raises(ValueError, match=message.replace("(", r"\(")):
+        ULTHO(space, c=c, window=window)
+
+
+def test_update_without_selection_and_double_select():
+    bandit = ULTHO({"lr": [0.1, 0.2]})
+    with pytest.raises(RuntimeError, match="without a pending selection"):
+        bandit.update(1.0)
+    bandit.select()
+    with pytest.raises(RuntimeError, match="twice without update"):
+        bandit.select()
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf"), "1.0", None])
+def test_non_finite_utility_enters_no_window(bad):
+    bandit = ULTHO({"lr": [0.1, 0.2]}, window=3)
+    bandit.select()
+    before = bandit.state_dict()
+    with pytest.raises(ValueError, match="not a finite number"):
+        bandit.update(bad)
+    assert bandit.state_dict() == before  # still pending, nothing credited
+    bandit.update(2.0)
+    assert bandit.utilities() == {"lr": 2.0}
+
+
+@pytest.mark.parametrize(
+    "items, message",
+    [
+        ([], "empty search space"),
+        (["momentum"], "unknown cluster 'momentum'"),
+        (["momentum=0.9"], "unknown cluster 'momentum'"),
+        (["=0.1"], "malformed cluster item '=0.1'"),
+        (["vf_coef="], "malformed cluster item 'vf_coef='"),
+        (["vf_coef=0.5,,1"], "malformed cluster item 'vf_coef=0.5,,1'"),
+        (["vf_coef=0.5,big"], "'big' is not a number"),
+        (["vf_coef=0.5,nan"], "not a finite number"),
+        (["vf_coef=0.5,0.5"], "twice"),
+        (["learning_rate", "learning_rate=0.1"], "'learning_rate' is given twice"),
+        (["ent_coef"], "'ent_coef' has no default values"),
+    ],
+)
+def test_parse_clusters_errors(items, message):
+    defaults = {"learning_rate": [1e-3, 2.5e-3], "vf_coef": [0.25, 0.5, 1.0]}
+    with pytest.raises(ValueError, match=message):
+        parse_clusters(items, defaults, allowed=["learning_rate", "vf_coef", "ent_coef"])
+
+
+def test_parse_clusters_defaults_explicit_values_and_order():
+    defaults = {"learning_rate": [1e-3, 2.5e-3], "minibatch_size": [128, 256], "vf_coef": [0.25, 0.5, 1.0]}
+    space = parse_clusters(["vf_coef=0.1, 0.2", "learning_rate", "minibatch_size=64,1e2"], defaults)
+    assert space == {"vf_coef": [0.1, 0.2], "learning_rate": [1e-3, 2.5e-3], "minibatch_size": [64, 100.0]}
+    assert list(space) == ["vf_coef", "learning_rate", "minibatch_size"]
+    assert isinstance(space["minibatch_size"][0], int)
+
+
+def _run_state():
+    bandit = ULTHO({"lr": [1, 2], "mb": [3]}, c=1.0, window=2)
+    for u in (1.0, 2.0, 3.0):
+        bandit.select()
+        bandit.update(u)
+    return bandit.state_dict()
+
+
+@pytest.mark.parametrize(
+    "corrupt, message",
+    [
+        (lambda s: s.update(search_space={"lr": [1, 2]}), "search space"),
+        (lambda s: s.update(search_space={"lr": [1, 5], "mb": [3]}), "search space"),
+        (lambda s: s.update(c=2.0), "c=2.0"),
+        (lambda s: s.update(window=3), "window=3"),
+        (lambda s: s.update(format=99), "format"),
+        (lambda s: s.update(num_selections=7), "selections"),
+        (lambda s: s.update(pending=[5, 0], num_selections=4), "outside its search space"),
+        (lambda s: s["clusters"][0].update(count=0), "count"),
+        (lambda s: s["clusters"][0].update(credits=[1.0, 2.0, 3.0]), "credits"),
+        (lambda s: s["clusters"][0].update(count=9), "add up"),
+        (lambda s: s["values"][0].pop(), "number of arms"),
+        (lambda s: s.pop("clusters"), "malformed"),
+    ],
+)
+def test_mismatched_or_corrupt_state_dict(corrupt, message):
+    state = _run_state()
+    corrupt(state)
+    target = ULTHO({"lr": [1, 2], "mb": [3]}, c=1.0, window=2)
+    before = target.state_dict()
+    with pytest.raises(ValueError, match=message):
+        target.load_state_dict(state)
+    assert target.state_dict() == before
