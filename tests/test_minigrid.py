@@ -1,0 +1,177 @@
+"""ppo_ultho_minigrid.py, run for real on MiniGrid with tiny budgets."""
+
+import math
+import os
+
+import pytest
+import torch
+
+from helpers import files_under, kill_after_first_checkpoint, run, run_ok, scalars, summary
+from ultho_bandit import ULTHO
+
+SCRIPT = "ppo_ultho_minigrid.py"
+SPACE = {"learning_rate": [1e-3, 2.5e-3, 5e-3], "minibatch_size": [128, 256, 512], "vf_coef": [0.25, 0.5, 1.0]}
+# 16 envs x 192 steps, two iterations: every DoorKey-6x6 episode (at most 360 steps) ends at least once.
+TWO_ITERATIONS = ["--num-envs", "16", "--num-steps", "192", "--total-timesteps", "6144", "--eval-episodes", "3"]
+CHARTS = ["charts/episodic_return", "charts/episodic_length", "charts/SPS", "charts/learning_rate",
+          "losses/value_loss", "losses/policy_loss", "losses/entropy", "losses/approx_kl", "losses/old_approx_kl",
+          "losses/clipfrac", "losses/explained_variance"]
+
+
+@pytest.fixture(scope="module")
+def smoke_run(tmp_path_factory):
+    runs = tmp_path_factory.mktemp("runs")
+    run_ok(SCRIPT, *TWO_ITERATIONS, "--runs-dir", str(runs), "--run-name", "smoke")
+    return str(runs / "smoke")
+
+
+def test_smoke_run_writes_every_tensorboard_tag(smoke_run):
+    series = scalars(smoke_run)
+    expected = CHARTS + [f"hparams/{name}" for name in SPACE] + list(ULTHO(SPACE).scalars()) + ["ultho/credit"]
+    missing = [tag for tag in expected if tag not in series]
+    assert not missing, f"missing tags: {missing}"
+    assert [step for step, _ in series["ultho/selected_cluster"]] == [3072, 6144]
+    # Iteration 1 picks the first cluster's first value (every bound is 0); the tuned setting shows it.
+    assert series["ultho/selected_cluster"][0][1] == 0.0
+    assert series["hparams/learning_rate"][0][1] == pytest.approx(1e-3)
+    assert series["charts/learning_rate"][0][1] == pytest.approx(1e-3)
+    # Only iteration 2 has a credit: the one for iteration 1's choice.
+    assert len(series["ultho/credit"]) == 1
+
+
+def test_smoke_run_summary_fields(smoke_run):
+    s = summary(smoke_run)
+    assert s["global_step"] == 6144 and s["iterations"] == 2 and s["ultho"] is True
+    assert s["env_id"] == "MiniGrid-DoorKey-6x6-v0" and s["settings"]["learning_rate"] == 1e-3
+    assert s["wall_time_s"] > 0 and s["sps"] > 0
+    assert 0 < s["final_score_episodes"] <= 100 and s["final_score"] is not None
+    assert s["eval"]["episodes"] == 3 and len(s["eval"]["returns"]) == 3
+    assert sum(s["bandit"]["selections"].values()) == 1  # the second selection is never credited
+    assert s["bandit"]["coi"] in SPACE and s["bandit"]["noi"] in SPACE
+    assert s["bandit"]["search_space"] == SPACE
+    checkpoint = torch.load(os.path.join(smoke_run, "checkpoint.pt"), weights_only=False)
+    assert checkpoint["iteration"] == 2 and checkpoint["global_step"] == 6144
+
+
+def test_no_ultho_keeps_settings_fixed_and_logs_no_bandit_tags(tmp_path):
+    run_ok(SCRIPT, *TWO_ITERATIONS, "--no-ultho", "--learning-rate", "0.002", "--runs-dir", str(tmp_path),
+           "--run-name", "ppo")
+    series = scalars(str(tmp_path / "ppo"))
+    assert not [tag for tag in series if tag.startswith("ultho/")]
+    assert [v for _, v in series["hparams/learning_rate"]] == pytest.approx([0.002, 0.002])
+    assert [v for _, v in series["hparams/minibatch_size"]] == [256, 256]
+    assert [v for _, v in series["hparams/vf_coef"]] == [0.5, 0.5]
+    assert [v for _, v in series["charts/learning_rate"]] == pytest.approx([0.002, 0.002])
+    s = summary(str(tmp_path / "ppo"))
+    assert s["bandit"] is None and s["settings_in_force"] == {"learning_rate": 0.002, "minibatch_size": 256, "vf_coef": 0.5}
+
+
+def test_killed_and_resumed_run_equals_uninterrupted_run(tmp_path):
+    args = ["--env-id", "MiniGrid-Empty-5x5-v0", "--num-envs", "8", "--num-steps", "64", "--total-timesteps",
+            "6144", "--minibatch-size", "128", "--ultho-clusters", "learning_rate", "minibatch_size=64,128,256",
+            "vf_coef", "--checkpoint-every", "2", "--eval-episodes", "2", "--quiet", "--runs-dir", str(tmp_path)]
+    run_ok(SCRIPT, *args, "--run-name", "whole")
+    kill_after_first_checkpoint(SCRIPT, str(tmp_path / "killed"), *args, "--run-name", "killed")
+    interrupted_at = torch.load(tmp_path / "killed" / "checkpoint.pt", weights_only=False)["iteration"]
+    assert interrupted_at < 12 and not (tmp_path / "killed" / "summary.json").exists()
+    run_ok(SCRIPT, "--resume", str(tmp_path / "killed"), "--quiet")
+
+    whole, resumed = summary(str(tmp_path / "whole")), summary(str(tmp_path / "killed"))
+    for key in ("global_step", "bandit", "settings_in_force", "final_score", "eval"):
+        assert whole[key] == resumed[key], key
+    a, b = scalars(str(tmp_path / "whole")), scalars(str(tmp_path / "killed"))
+    for tag in ("ultho/selected_cluster", "ultho/selected_value", "ultho/credit", "losses/value_loss",
+                "hparams/learning_rate", "charts/learning_rate"):
+        assert a[tag] == b[tag], tag
+    assert len(a["ultho/selected_cluster"]) == 12
+
+
+def test_non_finite_loss_stops_and_keeps_last_good_checkpoint(tmp_path):
+    # Iteration 1 takes lr=1e-3 (every bound is 0). Iteration 2 explores the untried 1e38, whose bonus
+    # c*sqrt(ln 2 / 1) exceeds the tried arm's by 5*(0.83-0.59) = 1.2 while |credit| < 1 on Empty-5x5.
+    result = run(SCRIPT, "--env-id", "MiniGrid-Empty-5x5-v0", "--num-envs", "4", "--num-steps", "64",
+                 "--total-timesteps", "2048", "--minibatch-size", "64", "--ultho-clusters", "learning_rate=0.001,1e38",
+                 "--checkpoint-every", "1", "--runs-dir", str(tmp_path), "--run-name", "nan")
+    assert result.returncode == 1, result.stderr
+    assert "non-finite loss at iteration 2" in result.stderr and "learning_rate=1e+38" in result.stderr
+    assert "the last good checkpoint is" in result.stderr
+    checkpoint = torch.load(tmp_path / "nan" / "checkpoint.pt", weights_only=False)
+    assert checkpoint["iteration"] == 1
+    assert all(torch.isfinite(p).all() for p in checkpoint["agent"].values())
+    assert not (tmp_path / "nan" / "summary.json").exists()
+
+
+BAD_INPUTS = [
+    (["--env-id", "MiniGrid-NoSuchThing-v0"], "MiniGrid-NoSuchThing-v0"),
+    (["--env-id", "CartPole-v1"], "CartPole-v1"),
+    (["--num-envs", "0"], "--num-envs must be positive, got 0"),
+    (["--num-steps", "-3"], "--num-steps must be positive, got -3"),
+    (["--num-steps", "abc"], "abc"),
+    (["--minibatch-size", "300"], "300 does not divide"),
+    (["--ultho-clusters", "momentum"], "momentum"),
+    (["--ultho-clusters", "minibatch_size=100,256"], "100 does not divide"),
+    (["--ultho-clusters", "learning_rate=0.001,-1"], "-1"),
+    (["--ultho-clusters", "vf_coef=0.5,"], "vf_coef=0.5,"),
+    (["--ultho-c", "-1"], "--ultho-c must be a finite number >= 0, got -1.0"),
+    (["--ultho-window", "0"], "--ultho-window must be >= 1, got 0"),
+    (["--ultho-utility", "reward"], "reward"),
+    (["--total-timesteps", "100"], "--total-timesteps 100"),
+    (["--learning-rate", "-0.1"], "-0.1"),
+    (["--gamma", "1.5"], "--gamma must be in (0, 1], got 1.5"),
+    (["--resume", "/no/such/run"], "/no/such/run"),
+    (["--bogus-flag", "1"], "--bogus-flag"),
+    (["--run-name", "a/b"], "'a/b'"),
+]
+
+
+@pytest.mark.parametrize("args, named", BAD_INPUTS, ids=[" ".join(a) for a, _ in BAD_INPUTS])
+def test_bad_input_exits_2_with_one_line_and_writes_nothing(tmp_path, args, named):
+    runs = tmp_path / "runs"
+    result = run(SCRIPT, "--runs-dir", str(runs), *args)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and named in lines[0], result.stderr
+    assert result.stdout == ""
+    assert files_under(str(runs)) == []
+
+
+def test_existing_run_directory_and_foreign_checkpoint_are_refused(tmp_path):
+    (tmp_path / "taken").mkdir()
+    result = run(SCRIPT, "--runs-dir", str(tmp_path), "--run-name", "taken")
+    assert result.returncode == 2 and "already exists" in result.stderr
+    (tmp_path / "junk").mkdir()
+    (tmp_path / "junk" / "checkpoint.pt").write_bytes(b"not a checkpoint")
+    result = run(SCRIPT, "--resume", str(tmp_path / "junk"))
+    assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1
+    assert "unreadable" in result.stderr
+    assert sorted(os.listdir(tmp_path)) == ["junk", "taken"] and os.listdir(tmp_path / "taken") == []
+
+
+def test_help_lists_every_flag():
+    result = run(SCRIPT, "--help")
+    assert result.returncode == 0
+    for flag in ("--env-id", "--total-timesteps", "--minibatch-size", "--ultho-clusters", "--no-ultho",
+                 "--ultho-utility", "--resume", "--checkpoint-every", "--eval-episodes", "--quiet"):
+        assert flag in result.stdout
+
+
+@pytest.mark.parametrize("utility", ["return", "value-after"])
+def test_other_utility_signals_credit_every_choice(tmp_path, utility):
+    run_ok(SCRIPT, "--env-id", "MiniGrid-Empty-5x5-v0", "--num-envs", "4", "--num-steps", "64", "--total-timesteps",
+           "768", "--minibatch-size", "64", "--ultho-clusters", "minibatch_size=64,128", "vf_coef",
+           "--ultho-utility", utility, "--eval-episodes", "0", "--runs-dir", str(tmp_path), "--run-name", "u")
+    s = summary(str(tmp_path / "u"))
+    credited = sum(s["bandit"]["selections"].values())
+    # value-after credits within the iteration (all three), return credits at the next one (two of three).
+    assert credited == (3 if utility == "value-after" else 2)
+    credits = [v for _, v in scalars(str(tmp_path / "u"))["ultho/credit"]]
+    assert len(credits) == credited and all(math.isfinite(c) for c in credits)
+
+
+def test_ppo_learns_empty_5x5(tmp_path):
+    run_ok(SCRIPT, "--env-id", "MiniGrid-Empty-5x5-v0", "--total-timesteps", "98304", "--eval-episodes", "20",
+           "--quiet", "--runs-dir", str(tmp_path), "--run-name", "learn")
+    s = summary(str(tmp_path / "learn"))
+    # A random policy scores about 0.1 here; the optimal return is about 0.96.
+    assert s["final_score"] >= 0.8, s["final_score"]
+    assert s["eval"]["mean_return"] >= 0.8, s["eval"]
