@@ -18,6 +18,17 @@ def run(script: str, *args: str, timeout: float = 600) -> subprocess.CompletedPr
                           timeout=timeout, cwd=REPO)
 
 
+def run_concurrently(script: str, arg_lists: list[list[str]], timeout: float = 600) -> list[subprocess.CompletedProcess]:
+    """`run` for every argument list at once (each start pays the torch import); results in the same order."""
+    processes = [subprocess.Popen([sys.executable, os.path.join(REPO, script), *args], stdout=subprocess.PIPE,
+                                  stderr=subprocess.PIPE, text=True, cwd=REPO) for args in arg_lists]
+    results = []
+    for args, process in zip(arg_lists, processes):
+        stdout, stderr = process.communicate(timeout=timeout)
+        results.append(subprocess.CompletedProcess(process.args, process.returncode, stdout, stderr))
+    return results
+
+
 def run_ok(script: str, *args: str) -> subprocess.CompletedProcess:
     result = run(script, *args)
     assert result.returncode == 0, f"{script} failed:\n{result.stdout}\n{result.stderr}"

@@ -6,7 +6,7 @@ import os
 import pytest
 import torch
 
-from helpers import files_under, kill_after_first_checkpoint, run, run_ok, scalars, summary
+from helpers import files_under, kill_after_first_checkpoint, run, run_concurrently, run_ok, scalars, summary
 from ultho_bandit import ULTHO
 
 SCRIPT = "ppo_ultho_minigrid.py"
@@ -124,11 +124,19 @@ BAD_INPUTS = [
 ]
 
 
-@pytest.mark.parametrize("args, named", BAD_INPUTS, ids=[" ".join(a) for a, _ in BAD_INPUTS])
-def test_bad_input_exits_2_with_one_line_and_writes_nothing(tmp_path, args, named):
-    runs = tmp_path / "runs"
-    result = run(SCRIPT, "--runs-dir", str(runs), *args)
-    assert result.returncode == 2
+@pytest.fixture(scope="module")
+def bad_input_results(tmp_path_factory):
+    """Every bad input, each with its own empty runs directory, run at once."""
+    base = tmp_path_factory.mktemp("bad")
+    runs = [base / str(k) for k in range(len(BAD_INPUTS))]
+    return list(zip(runs, run_concurrently(SCRIPT, [["--runs-dir", str(r), *a] for r, (a, _) in zip(runs, BAD_INPUTS)])))
+
+
+@pytest.mark.parametrize("case", range(len(BAD_INPUTS)), ids=[" ".join(a) for a, _ in BAD_INPUTS])
+def test_bad_input_exits_2_with_one_line_and_writes_nothing(bad_input_results, case):
+    runs, result = bad_input_results[case]
+    named = BAD_INPUTS[case][1]
+    assert result.returncode == 2, result.stderr
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and named in lines[0], result.stderr
     assert result.stdout == ""
@@ -175,3 +183,11 @@ def test_ppo_learns_empty_5x5(tmp_path):
     # A random policy scores about 0.1 here; the optimal return is about 0.96.
     assert s["final_score"] >= 0.8, s["final_score"]
     assert s["eval"]["mean_return"] >= 0.8, s["eval"]
+
+
+@pytest.mark.parametrize("env_id", ["MiniGrid-LavaGapS7-v0", "MiniGrid-Empty-16x16-v0", "MiniGrid-KeyCorridorS3R1-v0"])
+def test_other_minigrid_environments_run(tmp_path, env_id):
+    run_ok(SCRIPT, "--env-id", env_id, "--num-envs", "4", "--num-steps", "128", "--total-timesteps", "512",
+           "--eval-episodes", "1", "--quiet", "--runs-dir", str(tmp_path), "--run-name", "other")
+    s = summary(str(tmp_path / "other"))
+    assert s["env_id"] == env_id and s["global_step"] == 512 and s["eval"]["episodes"] == 1
