@@ -133,11 +133,13 @@ def complete_run(script_path: str, args: list[str], run_dir: str, max_retries: i
     """Brings ``run_dir`` to done and returns (its summary, processes started). A run already done starts
     nothing; an interrupted or failed one continues from its checkpoint (``--resume``), at most
     ``max_retries`` times after the first attempt. A script's bad-input exit (2) is not retried."""
-    attempts = 0
+    attempts, status = 0, None
     while True:
         state = run_state(run_dir)
         if state == "done":
             return read_json(os.path.join(run_dir, "summary.json")), attempts
+        if attempts > max_retries:
+            raise RunFailed(f"{run_dir} failed {attempts} time(s), last exit status {status}", status, attempts)
         if state == "fresh" and os.path.exists(run_dir):
             shutil.rmtree(run_dir)
         command = script_command(script_path, args, run_dir, resume=state == "resumable")
@@ -146,8 +148,6 @@ def complete_run(script_path: str, args: list[str], run_dir: str, max_retries: i
         status = subprocess.run(command, stdout=output, stderr=output).returncode
         if status == 2:
             raise RunFailed(f"{os.path.basename(script_path)} refused the arguments for {run_dir}", 2, attempts)
-        if status != 0 and attempts > max_retries:
-            raise RunFailed(f"{run_dir} failed {attempts} time(s), last exit status {status}", status, attempts)
 
 
 def cluster_item(cluster: str, user_items: Optional[list[str]], search_space: dict[str, list]) -> str:

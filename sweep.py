@@ -350,13 +350,11 @@ def main(argv: list[str]) -> int:
                 print(f"{len(runs)} runs, {steps:,} environment steps{hours}", file=sys.stderr)
             return 0
 
-        for script in scripts:
-            resolve_script(script)
+        for run in runs:
+            run.script = resolve_script(run.script)
         workers = args.workers or max(1, int((os.cpu_count() or 1) // args.cpus_per_run))
         executor = (RayExecutor(args.ray_address, args.cpus_per_run, args.gpus_per_run, args.max_retries)
                     if args.ray_address else LocalExecutor(workers))
-        for run in runs:
-            run.script = resolve_script(run.script)
         try:
             return 0 if sweep(runs, grid, out, executor, args.max_retries,
                               log=lambda line: print(line, flush=True)) else 1
