@@ -46,8 +46,8 @@ PROCGEN_GAMES = ("bigfish", "bossfight", "caveflyer", "chaser", "climber", "coin
                  "heist", "jumper", "leaper", "maze", "miner", "ninja", "plunder", "starpilot")
 PRESETS = {
     "procgen": Preset("ppo_ultho_procgen.py", PROCGEN_GAMES, 25_000_000, 170),
-    "atari": Preset("ppo_ultho_atari.py", ("ALE/BattleZone-v5", "ALE/DoubleDunk-v5", "ALE/NameThisGame-v5",
-                                           "ALE/Phoenix-v5", "ALE/Qbert-v5"), 10_000_000, 420),
+    "atari": Preset("ppo_ultho_atari.py", ("BattleZone", "DoubleDunk", "NameThisGame", "Phoenix", "Qbert"),
+                    10_000_000, 420),
     "minigrid": Preset("ppo_ultho_minigrid.py", ("MiniGrid-DoorKey-6x6-v0", "MiniGrid-LavaGapS7-v0",
                                                  "MiniGrid-Empty-16x16-v0"), 500_000, 6_500),
     "pybullet": Preset("ppo_ultho_pybullet.py", ("AntBulletEnv-v0", "HalfCheetahBulletEnv-v0", "HopperBulletEnv-v0",
