@@ -1,0 +1,335 @@
+"""Relay-ULTHO (Algorithm 2 of Yuan et al., ICCV 2025) in one command, for any ppo_ultho_*.py script.
+
+A full ULTHO run (or an existing one, ``--from``) names the cluster of interest (COI, selected most often)
+and the neglected cluster of interest (NOI, selected least often). ULTHO then runs twice more from scratch
+with the same seed and settings, once searching only the COI and once only the NOI; the better of the two by
+final score is the Relay-ULTHO result, for a budget of three runs. ``relay.json`` in the relay directory
+records all of it and is rewritten atomically as the runs finish.
+
+The tool is restartable: killed at any point and started again with the same arguments, it skips every run
+that has its ``summary.json``, resumes an interrupted one from its ``checkpoint.pt`` and starts afresh one
+that was killed before its first checkpoint.
+
+This module also holds what ``sweep.py`` shares with it: the state of a run directory, running a script
+to completion with bounded retries, and atomic JSON writes.
+"""
+
+import argparse
+import contextlib
+import hashlib
+import io
+import json
+import os
+import shutil
+import subprocess
+import sys
+from typing import Callable, Literal, Optional, Sequence, TextIO
+
+from ultho_bandit import format_value
+
+TOOL = "relay_ultho.py"
+RELAY_FORMAT = 1
+OWNED_FLAGS = ("--no-ultho", "--run-name", "--runs-dir", "--resume")
+"""Script flags the tools set themselves; a user passing one would break the resume logic."""
+
+RunState = Literal["done", "resumable", "fresh"]
+
+
+class UsageError(Exception):
+    """Bad input: one line on stderr, exit status 2, nothing started."""
+
+
+class RunFailed(Exception):
+    """A run that did not finish within its retries: the script's last exit status, processes started."""
+
+    def __init__(self, message: str, exit_status: int, attempts: int):
+        super().__init__(message)
+        self.exit_status, self.attempts = exit_status, attempts
+
+
+def atomic_write_json(path: str, obj: dict) -> None:
+    """Readers never see a half-written file: write a sibling, fsync, rename over."""
+    tmp = f"{path}.tmp"
+    with open(tmp, "w") as f:
+        f.write(json.dumps(obj, indent=2, allow_nan=False) + "\n")
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def read_json(path: str) -> Optional[dict]:
+    try:
+        with open(path) as f:
+            return json.load(f)
+    except FileNotFoundError:
+        return None
+
+
+def run_state(run_dir: str) -> RunState:
+    """done: summary.json exists; resumable: checkpoint.pt but no summary; fresh: neither (never started,
+    or killed before its first checkpoint, so nothing in it is worth keeping)."""
+    if os.path.isfile(os.path.join(run_dir, "summary.json")):
+        return "done"
+    if os.path.isfile(os.path.join(run_dir, "checkpoint.pt")):
+        return "resumable"
+    return "fresh"
+
+
+def flag_values(args: list[str], flag: str) -> Optional[list[str]]:
+    """The values of the last ``flag`` in a script's argument list (``--flag a b`` or ``--flag=a``), or None."""
+    found = None
+    for k, token in enumerate(args):
+        if token == flag:
+            found = []
+            for value in args[k + 1:]:
+                if value.startswith("--"):
+                    break
+                found.append(value)
+        elif token.startswith(flag + "="):
+            found = [token[len(flag) + 1:]]
+    return found
+
+
+def without_flag(args: list[str], flag: str) -> list[str]:
+    """``args`` with every ``flag`` and its values removed."""
+    out, skipping = [], False
+    for token in args:
+        if token == flag:
+            skipping = True
+        elif token.startswith(flag + "="):
+            skipping = False
+        elif skipping and not token.startswith("--"):
+            continue
+        else:
+            skipping = False
+            out.append(token)
+    return out
+
+
+def check_script_args(args: list[str]) -> None:
+    for token in args:
+        for flag in OWNED_FLAGS:
+            if token == flag or token.startswith(flag + "="):
+                raise UsageError(f"{flag} is set by the tool itself; remove it from the arguments after --")
+
+
+def resolve_script(script: str) -> str:
+    """A script path as given, else the file of that name next to this tool; absolute."""
+    for candidate in (script, os.path.join(os.path.dirname(os.path.abspath(__file__)), script)):
+        if os.path.isfile(candidate):
+            return os.path.abspath(candidate)
+    raise UsageError(f"script {script}: no such file")
+
+
+def script_command(script_path: str, args: list[str], run_dir: str, resume: bool) -> list[str]:
+    """The command that starts ``run_dir`` afresh, or continues it from its checkpoint."""
+    place = ["--resume", run_dir] if resume else ["--runs-dir", os.path.dirname(run_dir) or ".",
+                                                  "--run-name", os.path.basename(run_dir)]
+    return [sys.executable, script_path, *args, *place]
+
+
+def complete_run(script_path: str, args: list[str], run_dir: str, max_retries: int,
+                 output: Optional[TextIO] = None, log: Callable[[str], None] = lambda line: None) -> tuple[dict, int]:
+    """Brings ``run_dir`` to done and returns (its summary, processes started). A run already done starts
+    nothing; an interrupted or failed one continues from its checkpoint (``--resume``), at most
+    ``max_retries`` times after the first attempt. A script's bad-input exit (2) is not retried."""
+    attempts, status = 0, None
+    while True:
+        state = run_state(run_dir)
+        if state == "done":
+            return read_json(os.path.join(run_dir, "summary.json")), attempts
+        if attempts > max_retries:
+            raise RunFailed(f"{run_dir} failed {attempts} time(s), last exit status {status}", status, attempts)
+        if state == "fresh" and os.path.exists(run_dir):
+            shutil.rmtree(run_dir)
+        command = script_command(script_path, args, run_dir, resume=state == "resumable")
+        log(("resuming " if state == "resumable" else "starting ") + " ".join(command[1:]))
+        attempts += 1
+        status = subprocess.run(command, stdout=output, stderr=output).returncode
+        if status == 2:
+            raise RunFailed(f"{os.path.basename(script_path)} refused the arguments for {run_dir}", 2, attempts)
+
+
+def cluster_item(cluster: str, user_items: Optional[list[str]], search_space: dict[str, list]) -> str:
+    """The --ultho-clusters item searching only ``cluster``: the bare name (the benchmark's values) unless
+    the user gave explicit values, which are then taken from the full run's search space."""
+    if user_items is None or cluster in user_items:
+        return cluster
+    return f"{cluster}=" + ",".join(format_value(v) for v in search_space[cluster])
+
+
+def default_relay_dir(script: str, script_args: list[str], from_run: Optional[str]) -> str:
+    """runs/relay__<script>__<env>__<seed>__<hash of the arguments>: the same arguments find the same relay."""
+    env = (flag_values(script_args, "--env-id") or ["default"])[0].replace("/", "-")
+    seed = (flag_values(script_args, "--seed") or ["default"])[0]
+    key = json.dumps([os.path.basename(script), script_args, from_run and os.path.abspath(from_run)])
+    stem = os.path.splitext(os.path.basename(script))[0]
+    return os.path.join("runs", f"relay__{stem}__{env}__{seed}__{hashlib.sha1(key.encode()).hexdigest()[:8]}")
+
+
+def relative_to(path: str, base: str) -> str:
+    """``path`` relative to ``base`` when inside it, else absolute (the relay.json convention)."""
+    path, base = os.path.abspath(path), os.path.abspath(base)
+    return os.path.relpath(path, base) if os.path.commonpath([path, base]) == base else path
+
+
+def checked_full_summary(summary: dict, where: str) -> tuple[str, str]:
+    """(COI, NOI) of a finished full ULTHO run; refuses a run that cannot seed a relay."""
+    bandit = summary.get("bandit")
+    if bandit is None:
+        raise UsageError(f"{where} is a --no-ultho run: Relay-ULTHO needs a full ULTHO run")
+    if len(bandit["search_space"]) < 2:
+        raise UsageError(f"{where} searched one cluster ({', '.join(bandit['search_space'])}): Relay-ULTHO "
+                         "needs a full run over at least two clusters, since its COI and NOI would coincide")
+    if bandit["coi"] == bandit["noi"]:
+        raise UsageError(f"{where}: COI and NOI are both {bandit['coi']} (selections {bandit['selections']}); "
+                         "the full run credited too few selections to tell its clusters apart")
+    return bandit["coi"], bandit["noi"]
+
+
+def relay(script: str, script_args: list[str], relay_dir: str, from_run: Optional[str] = None,
+          max_retries: int = 2, run_flags: Sequence[str] = (), output: Optional[TextIO] = None,
+          log: Callable[[str], None] = print) -> dict:
+    """Runs Relay-ULTHO to the end, reusing whatever is already done in ``relay_dir``; returns relay.json.
+
+    ``run_flags`` go to every command but not into relay.json (``--quiet``). Raises UsageError for bad input
+    (before anything is written) and RunFailed for a run that did not finish.
+    """
+    check_script_args(script_args)
+    script_path = resolve_script(script)
+    user_items = flag_values(script_args, "--ultho-clusters")
+    if user_items is not None and len(user_items) < 2:
+        raise UsageError(f"--ultho-clusters {' '.join(user_items)}: Relay-ULTHO needs at least two clusters, "
+                         "since with one its COI and NOI would coincide")
+    if max_retries < 0:
+        raise UsageError(f"--max-retries must be >= 0, got {max_retries}")
+    run_args = [*script_args, *run_flags]
+    full_summary = None
+    if from_run is not None:
+        full_summary = read_json(os.path.join(from_run, "summary.json"))
+        if full_summary is None:
+            raise UsageError(f"--from {from_run}: no summary.json there (finish it first with --resume)")
+        if full_summary.get("script") != os.path.splitext(os.path.basename(script))[0]:
+            raise UsageError(f"--from {from_run}: a {full_summary.get('script')} run, not one of {script}")
+        for flag, key in (("--env-id", "env_id"), ("--seed", "seed")):
+            given = flag_values(script_args, flag)
+            if given and given[0] != str(full_summary[key]):
+                raise UsageError(f"--from {from_run}: its {key} is {full_summary[key]}, not {flag} {given[0]}")
+            if not given:  # the relay runs take the reused run's environment and seed
+                run_args += [flag, str(full_summary[key])]
+        checked_full_summary(full_summary, f"--from {from_run}")
+
+    full_run = from_run if from_run is not None else os.path.join(relay_dir, "full")
+    record_path = os.path.join(relay_dir, "relay.json")
+    record = read_json(record_path)
+    if record is not None and (record["script"], record["script_args"], record["full_run"]) != (
+            os.path.basename(script), script_args, relative_to(full_run, relay_dir)):
+        raise UsageError(f"{relay_dir} holds a relay of other arguments: {record['script']} "
+                         f"{' '.join(record['script_args'])} from {record['full_run']}")
+    created = not os.path.exists(relay_dir)
+    os.makedirs(relay_dir, exist_ok=True)
+    if record is None:
+        record = {"format": RELAY_FORMAT, "script": os.path.basename(script), "script_args": script_args,
+                  "env_id": None, "seed": None, "status": "running", "full_run": relative_to(full_run, relay_dir),
+                  "coi": None, "noi": None, "coi_run": None, "noi_run": None,
+                  "final_scores": {"full": None, "coi": None, "noi": None},
+                  "winner": None, "winner_run": None, "final_score": None, "total_timesteps": None}
+        atomic_write_json(record_path, record)
+
+    try:
+        if full_summary is None:
+            log(f"[relay] full ULTHO run in {full_run}")
+            full_summary, _ = complete_run(script_path, run_args, full_run, max_retries, output, log)
+    except RunFailed as err:
+        if err.exit_status == 2 and created:
+            shutil.rmtree(relay_dir)  # the script named the bad argument; leave nothing behind
+        raise
+    coi, noi = checked_full_summary(full_summary, f"full run {full_run}")
+    record.update(env_id=full_summary["env_id"], seed=full_summary["seed"], coi=coi, noi=noi)
+    record["final_scores"]["full"] = full_summary["final_score"]
+    atomic_write_json(record_path, record)
+
+    summaries = {"full": full_summary}
+    for role, cluster in (("coi", coi), ("noi", noi)):
+        run_dir = os.path.join(relay_dir, role)
+        args = [*without_flag(run_args, "--ultho-clusters"), "--ultho-clusters",
+                cluster_item(cluster, user_items, full_summary["bandit"]["search_space"])]
+        log(f"[relay] {role.upper()} run ({cluster} only) in {run_dir}")
+        summaries[role], _ = complete_run(script_path, args, run_dir, max_retries, output, log)
+        record[f"{role}_run"] = relative_to(run_dir, relay_dir)
+        record["final_scores"][role] = summaries[role]["final_score"]
+        atomic_write_json(record_path, record)
+
+    # A run in which no episode ended has no final score; it loses to one that has (ties go to the COI).
+    def score(role: str) -> float:
+        value = summaries[role]["final_score"]
+        return float("-inf") if value is None else value
+
+    winner = "coi" if score("coi") >= score("noi") else "noi"
+    record.update(status="done", winner=winner, winner_run=record[f"{winner}_run"],
+                  final_score=summaries[winner]["final_score"],
+                  total_timesteps=sum(s["global_step"] for s in summaries.values()))
+    atomic_write_json(record_path, record)
+    log(f"[relay] done: COI {coi} scored {summaries['coi']['final_score']}, NOI {noi} scored "
+        f"{summaries['noi']['final_score']}; winner {winner.upper()}, {record['total_timesteps']} steps in all; "
+        f"{record_path}")
+    return record
+
+
+def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
+    """(the tool's options, the script's arguments after --)."""
+    split = argv.index("--") if "--" in argv else len(argv)
+    parser = argparse.ArgumentParser(
+        prog=TOOL,
+        usage=f"{TOOL} [-h] [--from RUN_DIR] [--relay-dir DIR] [--max-retries N] [--quiet] SCRIPT [-- SCRIPT_ARGS...]",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Relay-ULTHO (Algorithm 2): a full ULTHO run, then ULTHO on its most-selected cluster (COI) "
+                    "and on its least-selected cluster (NOI) alone, same seed and settings; the better of the two "
+                    "by final score is the result. Writes relay.json in the relay directory. Run it again with the "
+                    "same arguments after a crash: finished runs are kept, an interrupted one resumes from its "
+                    "checkpoint.",
+        epilog="examples:\n"
+               "  python relay_ultho.py ppo_ultho_procgen.py -- --env-id starpilot --seed 1\n"
+               "  python relay_ultho.py ppo_ultho_minigrid.py --from runs/<a finished ULTHO run>\n"
+               "  python relay_ultho.py ppo_ultho_minigrid.py --relay-dir runs/relay-doorkey -- --ultho-c 1 --ultho-window 50\n"
+               "\nThe tool sets the script's --runs-dir, --run-name and --resume itself; --no-ultho is refused.",
+    )
+    parser.add_argument("script", help="the training script, e.g. ppo_ultho_minigrid.py")
+    parser.add_argument("--from", dest="from_run", metavar="RUN_DIR",
+                        help="reuse this finished full ULTHO run instead of starting one (its env id and seed are used)")
+    parser.add_argument("--relay-dir", metavar="DIR", help="where the runs and relay.json go (default: "
+                        "runs/relay__<script>__<env>__<seed>__<hash of the arguments>)")
+    parser.add_argument("--max-retries", type=int, default=2, metavar="N",
+                        help="times a failed or interrupted run is resumed from its checkpoint (default: 2)")
+    parser.add_argument("--quiet", action="store_true", help="print nothing but errors (also passed to the script)")
+    err = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(err):
+            return parser.parse_args(argv[:split]), argv[split + 1:]
+    except SystemExit as exit_:
+        if exit_.code in (0, None):
+            raise
+        # argparse printed usage and message; the one-line convention keeps the message.
+        lines = err.getvalue().strip().splitlines()
+        raise UsageError(lines[-1].split("error: ", 1)[-1] if lines else "invalid arguments") from None
+
+
+def main(argv: list[str]) -> int:
+    try:
+        args, script_args = parse_args(argv)
+        relay_dir = args.relay_dir or default_relay_dir(args.script, script_args, args.from_run)
+        relay(args.script, script_args, relay_dir, args.from_run, args.max_retries,
+              run_flags=["--quiet"] if args.quiet else [],
+              log=(lambda line: None) if args.quiet else (lambda line: print(line, flush=True)))
+    except UsageError as err:
+        print(f"{TOOL}: error: {err}", file=sys.stderr)
+        return 2
+    except RunFailed as err:
+        if err.exit_status != 2:  # with 2 the script has printed the one line naming the bad argument
+            print(f"{TOOL}: error: {err}; run the same command again to resume it", file=sys.stderr)
+        return 2 if err.exit_status == 2 else 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

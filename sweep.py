@@ -1,0 +1,369 @@
+"""The paper's experiment grids, from one machine to a Ray cluster.
+
+A grid (scripts x environment ids x methods x seeds, with every (c, W) for ULTHO) expands into runs, each
+a deterministic directory under ``<out>/runs`` (a relay: ``<out>/relays``), so the same command always
+names the same runs. Started again, a sweep skips every run that has its ``summary.json`` (a relay: its
+``relay.json`` with status done), resumes interrupted or failed runs from their checkpoints with a bounded
+number of retries, and starts afresh only what never checkpointed. ``<out>/sweep.json`` maps every run to
+its grid point and status; ``<out>/logs/<run>.log`` holds each run's output.
+
+Runs go to local processes (``--workers`` at a time) or, with ``--ray-address``, as tasks to an existing Ray
+cluster, which places them on its nodes by the resources each asks for.
+"""
+
+import argparse
+import concurrent.futures
+import contextlib
+import io
+import itertools
+import os
+import subprocess
+import sys
+from dataclasses import dataclass, field
+from typing import Optional
+
+from relay_ultho import (RunFailed, UsageError, atomic_write_json, complete_run, read_json, resolve_script,
+                         run_state, script_command)
+from ultho_bandit import format_value
+
+TOOL = "sweep.py"
+SWEEP_FORMAT = 1
+RELAY_TOOL = os.path.join(os.path.dirname(os.path.abspath(__file__)), "relay_ultho.py")
+METHODS = ("ppo", "ultho", "relay")
+
+
+@dataclass(frozen=True)
+class Preset:
+    script: str
+    env_ids: tuple[str, ...]
+    total_timesteps: int
+    """the paper's budget per run (ULTHO_SPEC.md, "environment steps")"""
+    measured_sps: float
+    """steps per second on the 2-core CI CPU, for the compute estimate"""
+
+
+PROCGEN_GAMES = ("bigfish", "bossfight", "caveflyer", "chaser", "climber", "coinrun", "dodgeball", "fruitbot",
+                 "heist", "jumper", "leaper", "maze", "miner", "ninja", "plunder", "starpilot")
+PRESETS = {
+    "procgen": Preset("ppo_ultho_procgen.py", PROCGEN_GAMES, 25_000_000, 170),
+    "atari": Preset("ppo_ultho_atari.py", ("BattleZone", "DoubleDunk", "NameThisGame", "Phoenix", "Qbert"),
+                    10_000_000, 420),
+    "minigrid": Preset("ppo_ultho_minigrid.py", ("MiniGrid-DoorKey-6x6-v0", "MiniGrid-LavaGapS7-v0",
+                                                 "MiniGrid-Empty-16x16-v0"), 500_000, 6_500),
+    "pybullet": Preset("ppo_ultho_pybullet.py", ("AntBulletEnv-v0", "HalfCheetahBulletEnv-v0", "HopperBulletEnv-v0",
+                                                 "Walker2DBulletEnv-v0"), 2_000_000, 1_000),
+}
+PAPER_C = (1.0, 5.0)
+PAPER_WINDOWS = (10, 50, 100)
+PAPER_SEEDS = (1, 2, 3, 4, 5)
+
+
+@dataclass
+class Run:
+    """One grid point and how to bring it to done."""
+    name: str
+    script: str
+    env_id: str
+    method: str
+    c: Optional[float]
+    window: Optional[int]
+    seed: int
+    path: str
+    """the run directory (a relay: the relay directory)"""
+    args: list[str]
+    """the script's arguments (a relay: those after --)"""
+    source: Optional["Run"] = None
+    """a relay's full ULTHO run, reused with --from when the grid has it"""
+    status: str = "pending"
+    attempts: int = 0
+    error: Optional[str] = None
+    dependents: list["Run"] = field(default_factory=list)
+
+    @property
+    def benchmark(self) -> str:
+        stem = os.path.splitext(os.path.basename(self.script))[0]
+        return stem.removeprefix("ppo_ultho_")
+
+    def is_done(self) -> bool:
+        if self.method == "relay":
+            record = read_json(os.path.join(self.path, "relay.json"))
+            return record is not None and record["status"] == "done"
+        return run_state(self.path) == "done"
+
+    def relay_command(self, max_retries: int) -> list[str]:
+        source = ["--from", self.source.path] if self.source is not None else []
+        return [sys.executable, RELAY_TOOL, self.script, *source, "--relay-dir", self.path,
+                "--max-retries", str(max_retries), "--quiet", "--", *self.args]
+
+    def command(self) -> list[str]:
+        """What runs first (dry run); retries use --resume."""
+        if self.method == "relay":
+            return self.relay_command(0)
+        return script_command(self.script, self.args, self.path, resume=False)
+
+
+def expand(scripts: list[str], env_ids: list[str], methods: list[str], c_values: list[float], windows: list[int],
+           seeds: list[int], total_timesteps: Optional[int], extra_args: list[str], out: str) -> list[Run]:
+    """Every grid point in a fixed order; a relay follows the ULTHO run it reuses."""
+    runs = []
+    budget = ["--total-timesteps", str(total_timesteps)] if total_timesteps is not None else []
+    for script, env_id, seed in itertools.product(scripts, env_ids, seeds):
+        stem = os.path.splitext(os.path.basename(script))[0].removeprefix("ppo_ultho_")
+        base = ["--env-id", env_id, "--seed", str(seed), *budget]
+        prefix = f"{stem}__{env_id.replace('/', '-')}"
+        if "ppo" in methods:
+            runs.append(Run(f"{prefix}__ppo__s{seed}", script, env_id, "ppo", None, None, seed,
+                            os.path.join(out, "runs", f"{prefix}__ppo__s{seed}"),
+                            [*base, "--no-ultho", *extra_args, "--quiet"]))
+        for c, window in itertools.product(c_values, windows):
+            tag = f"c{format_value(c)}_w{window}"
+            bandit = ["--ultho-c", format_value(c), "--ultho-window", str(window)]
+            ultho = None
+            if "ultho" in methods:
+                ultho = Run(f"{prefix}__ultho_{tag}__s{seed}", script, env_id, "ultho", c, window, seed,
+                            os.path.join(out, "runs", f"{prefix}__ultho_{tag}__s{seed}"),
+                            [*base, *bandit, *extra_args, "--quiet"])
+                runs.append(ultho)
+            if "relay" in methods:
+                relay = Run(f"{prefix}__relay_{tag}__s{seed}", script, env_id, "relay", c, window, seed,
+                            os.path.join(out, "relays", f"{prefix}__relay_{tag}__s{seed}"),
+                            [*base, *bandit, *extra_args], source=ultho)
+                runs.append(relay)
+                if ultho is not None:
+                    ultho.dependents.append(relay)
+    return runs
+
+
+def execute(run: Run, max_retries: int, log_path: str) -> tuple[str, int, Optional[str]]:
+    """Brings one run to done in this process's machine; returns (status, processes started, error)."""
+    os.makedirs(os.path.dirname(log_path), exist_ok=True)
+    with open(log_path, "a") as output:
+        if run.method != "relay":
+            try:
+                _, attempts = complete_run(resolve_script(run.script), run.args, run.path, max_retries, output)
+                return "done", attempts, None
+            except RunFailed as err:
+                return "failed", err.attempts, f"{err} (log: {log_path})"
+        # A relay resumes its own runs; it is retried as a whole while it fails for reasons other than input.
+        for attempt in range(1, max_retries + 2):
+            output.flush()
+            status = subprocess.run(run.relay_command(0), stdout=output, stderr=output).returncode
+            if status == 0:
+                return "done", attempt, None
+            if status == 2:
+                break
+        return "failed", attempt, f"relay_ultho.py exited with status {status} (log: {log_path})"
+
+
+def index(grid: dict, runs: list[Run], out: str) -> dict:
+    return {"format": SWEEP_FORMAT, "grid": grid, "runs": [{
+        "name": r.name, "script": os.path.basename(r.script), "benchmark": r.benchmark, "env_id": r.env_id,
+        "method": r.method, "c": r.c, "window": r.window, "seed": r.seed, "path": os.path.relpath(r.path, out),
+        "status": r.status, "attempts": r.attempts, "error": r.error} for r in runs]}
+
+
+class LocalExecutor:
+    """Runs as local processes, ``workers`` at a time (threads only wait on the subprocesses)."""
+
+    def __init__(self, workers: int):
+        self.pool = concurrent.futures.ThreadPoolExecutor(workers)
+        self.pending: dict[concurrent.futures.Future, Run] = {}
+
+    def submit(self, run: Run, max_retries: int, log_path: str) -> None:
+        self.pending[self.pool.submit(execute, run, max_retries, log_path)] = run
+
+    def next_finished(self) -> tuple[Run, tuple]:
+        future = next(concurrent.futures.as_completed(self.pending))
+        return self.pending.pop(future), future.result()
+
+    def close(self) -> None:
+        self.pool.shutdown()
+
+
+class RayExecutor:
+    """Each run is a Ray task on whichever node has the resources free; the cluster does the placing."""
+
+    def __init__(self, address: str, cpus: float, gpus: float, max_retries: int):
+        import ray
+
+        self.ray = ray
+        with contextlib.redirect_stderr(io.StringIO()):
+            ray.init(address=address, log_to_driver=False, logging_level="ERROR")
+        # Ray re-runs a task whose worker or node died; the re-run resumes from the checkpoint on shared disk.
+        self.task = ray.remote(num_cpus=cpus, num_gpus=gpus, max_retries=max_retries)(execute)
+        self.pending: dict = {}
+
+    def submit(self, run: Run, max_retries: int, log_path: str) -> None:
+        self.pending[self.task.remote(run, max_retries, log_path)] = run
+
+    def next_finished(self) -> tuple[Run, tuple]:
+        [ref], _ = self.ray.wait(list(self.pending), num_returns=1)
+        run = self.pending.pop(ref)
+        try:
+            return run, self.ray.get(ref)
+        except self.ray.exceptions.RayError as err:
+            return run, ("failed", run.attempts + 1, f"Ray task failed: {str(err).splitlines()[0]}")
+
+    def close(self) -> None:
+        self.ray.shutdown()
+
+
+def sweep(runs: list[Run], grid: dict, out: str, executor, max_retries: int, log=print) -> bool:
+    """Brings every run to done or failed, rewriting sweep.json as they change; True when all are done."""
+    index_path = os.path.join(out, "sweep.json")
+    previous = {r["name"]: r for r in (read_json(index_path) or {"runs": []})["runs"]}
+    for run in runs:
+        run.attempts = previous.get(run.name, {}).get("attempts", 0)
+        run.status = "done" if run.is_done() else "pending"
+    os.makedirs(out, exist_ok=True)
+    atomic_write_json(index_path, index(grid, runs, out))
+    todo = [r for r in runs if r.status == "pending"]
+    log(f"[sweep] {len(runs)} runs, {len(runs) - len(todo)} already done, {len(todo)} to run")
+
+    def start(run: Run) -> None:
+        run.status = "running"
+        executor.submit(run, max_retries, os.path.join(out, "logs", f"{run.name}.log"))
+
+    for run in todo:
+        if run.source is None or run.source.status == "done":
+            start(run)
+    atomic_write_json(index_path, index(grid, runs, out))
+    while executor.pending:
+        run, (status, attempts, error) = executor.next_finished()
+        run.status, run.attempts, run.error = status, run.attempts + attempts, error
+        log(f"[sweep] {status}: {run.name}" + (f": {error}" if error else ""))
+        for dependent in run.dependents:
+            if dependent.status == "pending":
+                if status == "done":
+                    start(dependent)
+                else:
+                    dependent.status, dependent.error = "failed", f"its ULTHO run {run.name} failed"
+        atomic_write_json(index_path, index(grid, runs, out))
+    failed = [r for r in runs if r.status != "done"]
+    log(f"[sweep] {len(runs) - len(failed)}/{len(runs)} done" + (f", {len(failed)} failed: run the same command "
+                                                                   "again to retry them" if failed else ""))
+    return not failed
+
+
+def total_steps(runs: list[Run], budget_of) -> int:
+    """Environment steps the grid costs: a relay adds two runs when it reuses its ULTHO run, else three."""
+    return sum(budget_of(r) * (1 if r.method != "relay" else 2 if r.source is not None else 3) for r in runs)
+
+
+def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
+    split = argv.index("--") if "--" in argv else len(argv)
+    parser = argparse.ArgumentParser(
+        prog=TOOL,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Run a grid of ULTHO experiments: scripts x environment ids x methods (ppo: ULTHO off; "
+                    "ultho: one run per (c, W); relay: Relay-ULTHO per (c, W), reusing the ultho run) x seeds. "
+                    "Restartable: finished runs are skipped, interrupted ones resume from their checkpoints. "
+                    "Arguments after -- go to every run.",
+        epilog="examples:\n"
+               "  python sweep.py --paper minigrid --dry-run                      # the paper's MiniGrid grid\n"
+               "  python sweep.py --paper minigrid --total-timesteps 100000       # scaled down, local processes\n"
+               "  python sweep.py --paper procgen --ray-address 10.0.0.1:6379 --cpus-per-run 4 --gpus-per-run 0.5\n"
+               "  python sweep.py --scripts ppo_ultho_minigrid.py --env-ids MiniGrid-Empty-5x5-v0 \\\n"
+               "      --methods ppo ultho --seeds 1 2 3 --out runs/empty -- --num-envs 8\n",
+    )
+    grid = parser.add_argument_group("grid (a --paper preset fills every field; each given field overrides it)")
+    grid.add_argument("--paper", choices=sorted(PRESETS), help="the paper's grid for this benchmark: its script, "
+                      "environments and budget, methods ppo ultho relay, c in {1, 5}, W in {10, 50, 100}, seeds 1-5")
+    grid.add_argument("--scripts", nargs="+", metavar="SCRIPT", help="training scripts")
+    grid.add_argument("--env-ids", nargs="+", metavar="ENV_ID", help="environment ids (each with every script)")
+    grid.add_argument("--methods", nargs="+", choices=METHODS, help="default without a preset: ppo ultho")
+    grid.add_argument("--c", nargs="+", type=float, metavar="C", help="ULTHO's exploration coefficients (default 5)")
+    grid.add_argument("--window", nargs="+", type=int, metavar="W", help="ULTHO's windows (default 10)")
+    grid.add_argument("--seeds", nargs="+", type=int, metavar="SEED", help="seeds (default 1)")
+    grid.add_argument("--total-timesteps", type=int, metavar="N",
+                      help="steps per run (default: the preset's budget, else the script's default)")
+    execution = parser.add_argument_group("execution")
+    execution.add_argument("--out", metavar="DIR",
+                           help="sweep directory: runs/, relays/, logs/, sweep.json (default runs/sweep-<preset>)")
+    execution.add_argument("--workers", type=int, metavar="N",
+                           help="local runs at a time (default: the machine's cores / --cpus-per-run)")
+    execution.add_argument("--ray-address", metavar="ADDR",
+                           help="submit every run as a task to this running Ray cluster (e.g. 10.0.0.1:6379)")
+    execution.add_argument("--cpus-per-run", type=float, default=1, metavar="N", help="CPUs a run needs (default 1)")
+    execution.add_argument("--gpus-per-run", type=float, default=0, metavar="N",
+                           help="GPUs a Ray task reserves, fractions allowed (default 0; local runs ignore it)")
+    execution.add_argument("--max-retries", type=int, default=2, metavar="N",
+                           help="times a failed or interrupted run is resumed from its checkpoint (default 2)")
+    execution.add_argument("--dry-run", action="store_true",
+                           help="print every run's command and the compute it needs; run nothing")
+    err = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(err):
+            return parser.parse_args(argv[:split]), argv[split + 1:]
+    except SystemExit as exit_:
+        if exit_.code in (0, None):
+            raise
+        lines = err.getvalue().strip().splitlines()
+        raise UsageError(lines[-1].split("error: ", 1)[-1] if lines else "invalid arguments") from None
+
+
+def main(argv: list[str]) -> int:
+    try:
+        args, extra_args = parse_args(argv)
+        preset = PRESETS.get(args.paper)
+        scripts = args.scripts or ([preset.script] if preset else None)
+        env_ids = args.env_ids or (list(preset.env_ids) if preset else None)
+        if not scripts or not env_ids:
+            raise UsageError("give --paper PRESET, or --scripts and --env-ids")
+        methods = args.methods or (list(METHODS) if preset else ["ppo", "ultho"])
+        c_values = args.c or (list(PAPER_C) if preset else [5.0])
+        windows = args.window or (list(PAPER_WINDOWS) if preset else [10])
+        seeds = args.seeds or (list(PAPER_SEEDS) if preset else [1])
+        total_timesteps = args.total_timesteps or (preset.total_timesteps if preset else None)
+        for name, values in (("--methods", methods), ("--c", c_values), ("--window", windows), ("--seeds", seeds)):
+            if len(set(values)) != len(values):
+                raise UsageError(f"{name} {' '.join(map(str, values))}: a value is given twice")
+        if any(c < 0 for c in c_values) or any(w < 1 for w in windows):
+            raise UsageError("--c must be >= 0 and --window >= 1")
+        for name, value in (("--total-timesteps", args.total_timesteps), ("--workers", args.workers)):
+            if value is not None and value <= 0:
+                raise UsageError(f"{name} must be positive, got {value}")
+        if args.max_retries < 0 or args.cpus_per_run <= 0 or args.gpus_per_run < 0:
+            raise UsageError("--max-retries and --gpus-per-run must be >= 0, --cpus-per-run positive")
+        for token in extra_args:
+            for flag in ("--env-id", "--seed", "--total-timesteps", "--ultho-c", "--ultho-window", "--no-ultho",
+                         "--run-name", "--runs-dir", "--resume"):
+                if token == flag or token.startswith(flag + "="):
+                    raise UsageError(f"{flag} after -- is set by the grid; use the grid's own options")
+        # Absolute, because a Ray task's working directory is not the driver's.
+        out = os.path.abspath(args.out or os.path.join("runs", f"sweep-{args.paper or 'custom'}"))
+        grid = {"scripts": [os.path.basename(s) for s in scripts], "env_ids": env_ids, "methods": methods,
+                "c": c_values, "window": windows, "seeds": seeds, "total_timesteps": total_timesteps,
+                "extra_args": extra_args}
+        runs = expand(scripts, env_ids, methods, c_values, windows, seeds, total_timesteps, extra_args, out)
+
+        if args.dry_run:
+            for run in runs:
+                print(" ".join(run.command()))
+            budget = total_timesteps
+            if budget is None:
+                print(f"{len(runs)} runs; steps per run are the scripts' defaults", file=sys.stderr)
+            else:
+                steps = total_steps(runs, lambda run: budget)
+                hours = f", {steps / preset.measured_sps / 3600:,.0f} hours at {preset.measured_sps:,.0f} steps/s" \
+                    if preset and args.scripts is None else ""
+                print(f"{len(runs)} runs, {steps:,} environment steps{hours}", file=sys.stderr)
+            return 0
+
+        for run in runs:
+            run.script = resolve_script(run.script)
+        workers = args.workers or max(1, int((os.cpu_count() or 1) // args.cpus_per_run))
+        executor = (RayExecutor(args.ray_address, args.cpus_per_run, args.gpus_per_run, args.max_retries)
+                    if args.ray_address else LocalExecutor(workers))
+        try:
+            return 0 if sweep(runs, grid, out, executor, args.max_retries,
+                              log=lambda line: print(line, flush=True)) else 1
+        finally:
+            executor.close()
+    except UsageError as err:
+        print(f"{TOOL}: error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,228 @@
+"""sweep.py: the paper presets' expansion, a local sweep, the same through a real Ray instance, kill and restart."""
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+
+import pytest
+
+from helpers import REPO, files_under, run, run_concurrently, summary
+
+TOOL = "sweep.py"
+SCRIPT = "ppo_ultho_minigrid.py"
+# Two iterations of 4 envs x 64 steps on Empty-5x5 (every episode ends); the first selection, learning_rate,
+# is the only credited one, so a relay's COI is learning_rate and its NOI minibatch_size.
+TINY = ["--scripts", SCRIPT, "--env-ids", "MiniGrid-Empty-5x5-v0", "--total-timesteps", "512", "--", "--num-envs", "4",
+        "--num-steps", "64", "--minibatch-size", "64", "--ultho-clusters", "learning_rate", "minibatch_size=32,64",
+        "--eval-episodes", "0"]
+RUN_FIELDS = {"name", "script", "benchmark", "env_id", "method", "c", "window", "seed", "path", "status", "attempts",
+              "error"}
+
+
+def index(out) -> dict:
+    with open(os.path.join(out, "sweep.json")) as f:
+        return json.load(f)
+
+
+def events(run_dir) -> list[str]:
+    return [f for f in os.listdir(run_dir) if f.startswith("events.out.tfevents")]
+
+
+@pytest.mark.parametrize("preset, envs, budget", [("procgen", 16, 25_000_000), ("atari", 5, 10_000_000),
+                                                  ("minigrid", 3, 500_000), ("pybullet", 4, 2_000_000)])
+def test_paper_preset_dry_run_expands_the_papers_grid(preset, envs, budget, tmp_path):
+    result = run(TOOL, "--paper", preset, "--dry-run", "--out", str(tmp_path / "s"))
+    assert result.returncode == 0, result.stderr
+    commands = result.stdout.strip().splitlines()
+    per_env_seed = 1 + 6 + 6  # ppo, ultho at each (c, W) in {1, 5} x {10, 50, 100}, relay at each
+    assert len(commands) == envs * 5 * per_env_seed
+    assert len({c for c in commands}) == len(commands)
+    assert sum("--no-ultho" in c for c in commands) == envs * 5
+    relays = [c for c in commands if "relay_ultho.py" in c]
+    assert len(relays) == envs * 5 * 6 and all(" --from " in c for c in relays)
+    assert all(f"ppo_ultho_{preset}.py" in c and f"--total-timesteps {budget}" in c for c in commands)
+    for c_value in ("1.0", "5.0"):
+        for window in ("10", "50", "100"):
+            assert sum(f"--ultho-c {c_value} --ultho-window {window} " in c + " " for c in commands) == 2 * envs * 5
+    for seed in range(1, 6):
+        assert sum(f" --seed {seed} " in c for c in commands) == envs * per_env_seed
+    # The relay reuses its ULTHO run, so a grid point costs 1 + 6 + 6 * 2 runs of the budget.
+    assert f"{len(commands)} runs, {envs * 5 * 19 * budget:,} environment steps" in result.stderr
+    assert not (tmp_path / "s").exists()
+
+
+@pytest.fixture(scope="module")
+def local_sweep(tmp_path_factory):
+    out = tmp_path_factory.mktemp("local") / "s"
+    result = run(TOOL, "--methods", "ppo", "ultho", "relay", "--out", str(out), "--workers", "2", *TINY)
+    return out, result
+
+
+def test_local_sweep_runs_every_grid_point_and_indexes_it(local_sweep):
+    out, result = local_sweep
+    assert result.returncode == 0, result.stdout + result.stderr
+    record = index(out)
+    assert record["format"] == 1
+    assert record["grid"] == {"scripts": [SCRIPT], "env_ids": ["MiniGrid-Empty-5x5-v0"],
+                              "methods": ["ppo", "ultho", "relay"], "c": [5.0], "window": [10], "seeds": [1],
+                              "total_timesteps": 512, "extra_args": TINY[TINY.index("--") + 1:]}
+    runs = {r["method"]: r for r in record["runs"]}
+    assert len(record["runs"]) == 3 and all(set(r) == RUN_FIELDS for r in record["runs"])
+    assert all(r["status"] == "done" and r["attempts"] == 1 and r["error"] is None for r in record["runs"])
+    assert all(r["benchmark"] == "minigrid" and r["seed"] == 1 and r["script"] == SCRIPT for r in record["runs"])
+    assert (runs["ppo"]["c"], runs["ppo"]["window"]) == (None, None)
+    assert (runs["ultho"]["c"], runs["ultho"]["window"]) == (runs["relay"]["c"], runs["relay"]["window"]) == (5.0, 10)
+
+    ppo, ultho = summary(str(out / runs["ppo"]["path"])), summary(str(out / runs["ultho"]["path"]))
+    assert ppo["bandit"] is None and ppo["global_step"] == 512 and ppo["env_id"] == "MiniGrid-Empty-5x5-v0"
+    assert (ultho["bandit"]["c"], ultho["bandit"]["window"], ultho["global_step"]) == (5.0, 10, 512)
+    with open(out / runs["relay"]["path"] / "relay.json") as f:
+        relay = json.load(f)
+    # The relay reused the sweep's ULTHO run as its full run: two more runs, three in its budget.
+    assert relay["status"] == "done" and relay["full_run"] == str(out / runs["ultho"]["path"])
+    assert (relay["coi"], relay["noi"]) == ("learning_rate", "minibatch_size")
+    assert relay["final_scores"]["full"] == ultho["final_score"] and relay["total_timesteps"] == 3 * 512
+    assert not os.path.exists(out / runs["relay"]["path"] / "full")
+
+
+def test_local_sweep_started_again_runs_nothing(local_sweep):
+    out, _ = local_sweep
+    before = {path: os.path.getmtime(path) for path in files_under(str(out)) if not path.endswith("sweep.json")}
+    result = run(TOOL, "--methods", "ppo", "ultho", "relay", "--out", str(out), "--workers", "2", *TINY)
+    assert result.returncode == 0, result.stderr
+    assert "3 runs, 3 already done, 0 to run" in result.stdout
+    assert {path: os.path.getmtime(path) for path in files_under(str(out)) if not path.endswith("sweep.json")} == before
+    assert all(r["status"] == "done" and r["attempts"] == 1 for r in index(out)["runs"])
+
+
+def test_killed_sweep_restarted_finishes_only_what_is_missing(tmp_path):
+    out = tmp_path / "s"
+    # Eight iterations, a checkpoint after each: the second run is killed between checkpoints.
+    args = [*TINY[:TINY.index("--total-timesteps")], "--total-timesteps", "2048", "--methods", "ultho",
+            "--seeds", "1", "2", "--workers", "1", "--out", str(out), *TINY[TINY.index("--"):], "--checkpoint-every", "1"]
+    process = subprocess.Popen([sys.executable, os.path.join(REPO, TOOL), *args], cwd=REPO, stdout=subprocess.DEVNULL,
+                               stderr=subprocess.DEVNULL, start_new_session=True)
+    first = out / "runs" / "minigrid__MiniGrid-Empty-5x5-v0__ultho_c5.0_w10__s1"
+    second = out / "runs" / "minigrid__MiniGrid-Empty-5x5-v0__ultho_c5.0_w10__s2"
+    deadline = time.time() + 300
+    while not (second / "checkpoint.pt").exists() and process.poll() is None and time.time() < deadline:
+        time.sleep(0.01)
+    os.killpg(process.pid, signal.SIGKILL)  # the sweep and the run it started, as a crash would
+    process.wait()
+    assert (first / "summary.json").exists() and not (second / "summary.json").exists(), "not killed in run 2"
+    assert [r["status"] for r in index(out)["runs"]] == ["done", "running"]
+    first_summary = (first / "summary.json").read_bytes()
+
+    result = run(TOOL, *args)
+    assert result.returncode == 0, result.stderr
+    assert "2 runs, 1 already done, 1 to run" in result.stdout
+    assert (first / "summary.json").read_bytes() == first_summary and len(events(first)) == 1
+    assert len(events(second)) == 2  # resumed from its checkpoint, not started again
+    assert summary(str(second))["global_step"] == 2048
+    assert [(r["status"], r["attempts"]) for r in index(out)["runs"]] == [("done", 1), ("done", 1)]
+
+
+def test_failing_run_is_retried_from_its_checkpoint_a_bounded_number_of_times(tmp_path):
+    # Iteration 2 takes the learning rate 1e38 (see test_minigrid.py): exit 1 after the first checkpoint,
+    # and again after each resume.
+    out = tmp_path / "s"
+    result = run(TOOL, "--scripts", SCRIPT, "--env-ids", "MiniGrid-Empty-5x5-v0", "--methods", "ultho",
+                 "--total-timesteps", "2048", "--max-retries", "1", "--out", str(out), "--", "--num-envs", "4",
+                 "--num-steps", "64", "--minibatch-size", "64", "--ultho-clusters", "learning_rate=0.001,1e38",
+                 "--checkpoint-every", "1")
+    assert result.returncode == 1
+    [record] = index(out)["runs"]
+    assert record["status"] == "failed" and record["attempts"] == 2
+    assert "failed 2 time(s), last exit status 1" in record["error"]
+    with open(out / "logs" / f"{record['name']}.log") as f:
+        log = f.read()
+    assert log.count("non-finite loss at iteration 2") == 2
+    assert "1 failed: run the same command again" in result.stdout.splitlines()[-1]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def ray_head():
+    """A real local Ray instance (2 CPUs, no dashboard), stopped by ending exactly the processes it started."""
+    temp_dir = tempfile.mkdtemp(prefix="ray", dir="/tmp")  # short: Ray's socket paths must fit in 107 bytes
+    port = free_port()
+    ray = os.path.join(os.path.dirname(sys.executable), "ray")
+    process = subprocess.Popen([ray, "start", "--head", "--block", "--port", str(port), "--num-cpus", "2",
+                                "--disable-usage-stats", "--include-dashboard=false", "--temp-dir", temp_dir,
+                                "--ray-client-server-port", str(free_port())],
+                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        for line in process.stdout:
+            if "Ray runtime started" in line:
+                break
+        else:
+            pytest.fail("ray start --head did not start")
+        yield f"127.0.0.1:{port}", temp_dir
+    finally:
+        for sig in (signal.SIGTERM, signal.SIGKILL):
+            try:
+                os.killpg(process.pid, sig)
+            except ProcessLookupError:
+                break
+            time.sleep(2)
+        process.wait()
+        shutil.rmtree(temp_dir, ignore_errors=True)
+
+
+def test_sweep_through_a_real_ray_instance(ray_head, tmp_path):
+    address, temp_dir = ray_head
+    out = tmp_path / "s"
+    result = run(TOOL, "--methods", "ppo", "ultho", "--ray-address", address, "--cpus-per-run", "1",
+                 "--out", str(out), *TINY)
+    assert result.returncode == 0, result.stdout + result.stderr
+    runs = index(out)["runs"]
+    assert [(r["method"], r["status"], r["attempts"]) for r in runs] == [("ppo", "done", 1), ("ultho", "done", 1)]
+    assert [summary(str(out / r["path"]))["global_step"] for r in runs] == [512, 512]
+    # The runs were Ray tasks: the instance's workers ran them.
+    logs = files_under(os.path.join(temp_dir, "session_latest", "logs"))
+    assert any(os.path.basename(p).startswith("worker-") for p in logs), logs
+
+
+BAD_INPUTS = [
+    ([], "give --paper PRESET, or --scripts and --env-ids"),
+    (["--paper", "mujoco"], "invalid choice: 'mujoco'"),
+    (["--scripts", "ppo_ultho_nothing.py", "--env-ids", "X"], "script ppo_ultho_nothing.py: no such file"),
+    (["--paper", "minigrid", "--seeds", "1", "1"], "--seeds 1 1: a value is given twice"),
+    (["--paper", "minigrid", "--workers", "0"], "--workers must be positive, got 0"),
+    (["--paper", "minigrid", "--methods", "pbt"], "invalid choice: 'pbt'"),
+    (["--paper", "minigrid", "--", "--seed", "3"], "--seed after -- is set by the grid"),
+    (["--paper", "minigrid", "--", "--resume", "x"], "--resume after -- is set by the grid"),
+]
+
+
+@pytest.fixture(scope="module")
+def bad_input_results(tmp_path_factory):
+    base = tmp_path_factory.mktemp("bad")
+    outs = [base / str(k) for k in range(len(BAD_INPUTS))]
+    return list(zip(outs, run_concurrently(TOOL, [["--out", str(o), *a] for o, (a, _) in zip(outs, BAD_INPUTS)])))
+
+
+@pytest.mark.parametrize("case", range(len(BAD_INPUTS)), ids=[" ".join(a) for a, _ in BAD_INPUTS])
+def test_bad_input_exits_2_with_one_line_and_writes_nothing(bad_input_results, case):
+    out, result = bad_input_results[case]
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and BAD_INPUTS[case][1] in lines[0], result.stderr
+    assert not out.exists()
+
+
+def test_help_reads_well():
+    result = run(TOOL, "--help")
+    assert result.returncode == 0
+    assert "python sweep.py --paper minigrid --dry-run" in result.stdout and "--ray-address" in result.stdout
