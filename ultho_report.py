@@ -259,14 +259,10 @@ class Study:
         for run in self.runs:
             if run.raw_score is None:
                 self.missing.append(f"`{run.path}` has no score (no training episode ended)")
-            elif run.benchmark == "procgen" or run.benchmark == "atari":
-                table = PROCGEN_EASY if run.benchmark == "procgen" else ALE_HUMAN
-                game = game_of(run.env_id, table)
-                if game is None:
+            elif run.benchmark in NORMALIZATION:
+                run.score = fixed_normalization(run.benchmark, run.env_id, run.raw_score)
+                if run.score is None:
                     self.missing.append(f"`{run.path}`: no normalization constants for {run.env_id}; not scored")
-                else:
-                    low, high = table[game]
-                    run.score = (run.raw_score - low) / (high - low)
             else:
                 by_env[(run.benchmark, run.env_id)].append(run)
         for (_, env_id), runs in by_env.items():
@@ -310,6 +306,16 @@ def raw_score(summary: dict, benchmark: str) -> tuple[float | None, str | None]:
     else:
         note = None
     return (None if summary["final_score"] is None else float(summary["final_score"])), note
+
+
+def fixed_normalization(benchmark: str, env_id: str, raw: float) -> float | None:
+    """Procgen easy-mode min-max or ALE human-normalized score; None for a game without constants."""
+    table = PROCGEN_EASY if benchmark == "procgen" else ALE_HUMAN
+    game = game_of(env_id, table)
+    if game is None:
+        return None
+    low, high = table[game]
+    return (raw - low) / (high - low)
 
 
 def game_of(env_id: str, table: dict) -> str | None:
@@ -518,19 +524,21 @@ def per_run_figure(run: Run, name: str, out: str) -> str | None:
 
 
 def robustness_figure(runs: list[Run], benchmark: str, grid: tuple[set, set], seed: int, reps: int,
-                      out: str) -> str | None:
+                      out: str) -> tuple[str | None, list[str]]:
+    """(file name, the (c, W) cells without scored runs)."""
     ultho = [r for r in runs if r.kind == "ultho" and r.score is not None and " on " not in r.label]
     if not ultho:
-        return None
+        return None, []
     cs = sorted(grid[0] | {r.c for r in ultho})
     windows = sorted(grid[1] | {r.window for r in ultho})
     figure, axes = plt.subplots(figsize=(max(5.5, 1.6 * len(cs) * len(windows) + 2), 4.4), layout="constrained")
-    width, labelled = 0.8 / len(cs), set()
+    width, labelled, empty = 0.8 / len(cs), set(), []
     for i, c in enumerate(cs):
         for j, window in enumerate(windows):
             x = j + (i - (len(cs) - 1) / 2) * width
             cell = strata_of([r for r in ultho if r.c == c and r.window == window])
             if not cell:
+                empty.append(f"(c={c:g}, W={window})")
                 axes.text(x, 0.03, f"c = {c:g}: no runs", rotation=90, ha="center", va="bottom", fontsize=8,
                           color="gray", transform=axes.get_xaxis_transform())
                 continue
@@ -549,7 +557,7 @@ def robustness_figure(runs: list[Run], benchmark: str, grid: tuple[set, set], se
     axes.set_ylabel("normalized score (%), mean with 95% CI")
     axes.set_title(f"{BENCHMARKS[benchmark]}: ULTHO over the (c, W) grid", fontsize=11)
     axes.legend(loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=len(cs) + 1, frameon=False)
-    return save(figure, out, f"robustness_{benchmark}.png")
+    return save(figure, out, f"robustness_{benchmark}.png"), empty
 
 
 # ---------------------------------------------------------------------- report
@@ -562,7 +570,8 @@ def budget_text(runs: list[Run]) -> str:
     return f"{low:,}" if low == high else f"{low:,}–{high:,}"
 
 
-def benchmark_section(study: Study, benchmark: str, seed: int, reps: int, out: str, rows: list[dict]) -> list[str]:
+def benchmark_section(study: Study, benchmark: str, args: argparse.Namespace, rows: list[dict]) -> list[str]:
+    seed, reps, out = args.seed, args.reps, args.out
     runs = [r for r in study.runs if r.benchmark == benchmark]
     methods = method_order(runs)
     colors = {label: f"C{i % 10}" for i, label in enumerate(methods)}
@@ -616,30 +625,34 @@ def benchmark_section(study: Study, benchmark: str, seed: int, reps: int, out: s
     for label in ultho_methods:
         members = [r for r in runs if r.label == label]
         drawn = decision_figures(members, f"{BENCHMARKS[benchmark]} {label}", out, slug(f"{benchmark}_{label}"))
-        lines += [f"#### {label}", ""] + [f"![{what}]({name})" for what, name in drawn]
+        lines += [f"#### {label}", ""] + [f"![{what}]({name})" for what, name in drawn] + [""]
+        if not args.per_run:
+            continue
         # Named by the path below the directory all runs share, so names stay short and distinct.
         base = os.path.commonpath([os.path.dirname(os.path.abspath(r.path)) for r in study.runs])
         per_run = [(r, per_run_figure(r, os.path.relpath(os.path.abspath(r.path), base), out))
                    for r in sorted(members, key=lambda r: (r.env_id, r.seed))]
-        lines += ["", "Per run: " + ", ".join(f"[{r.env_id} seed {r.seed}]({name})" for r, name in per_run if name), ""]
+        lines += ["Per run: " + ", ".join(f"[{r.env_id} seed {r.seed}]({name})" for r, name in per_run if name), ""]
 
-    robustness = robustness_figure(runs, benchmark, study.grid[benchmark], seed, reps, out)
+    robustness, empty = robustness_figure(runs, benchmark, study.grid[benchmark], seed, reps, out)
     if robustness:
         lines += ["### Robustness over (c, W)", "", f"![robustness]({robustness})", "",
                   "Mean normalized score of ULTHO at each (c, W) with its 95% stratified-bootstrap interval; the "
-                  "dashed line and grey band are fixed-settings PPO. Cells without runs say so.", ""]
+                  "dashed line and grey band are fixed-settings PPO."
+                  + (f" No scored ULTHO runs at {', '.join(empty)}." if empty else ""), ""]
     return lines
 
 
-def write_report(study: Study, roots: list[str], out: str, seed: int, reps: int) -> None:
+def write_report(study: Study, args: argparse.Namespace) -> None:
+    out = args.out
     os.makedirs(out, exist_ok=True)
     benchmarks = [b for b in BENCHMARKS if any(r.benchmark == b for r in study.runs)]
     lines = ["# ULTHO report", "",
-             f"`python ultho_report.py {' '.join(roots)} --out {out} --seed {seed} --reps {reps}`: "
+             f"`python ultho_report.py {' '.join(args.paths)} --out {out} --seed {args.seed} --reps {args.reps}`: "
              f"{len(study.runs)} runs ({', '.join(BENCHMARKS[b] for b in benchmarks)}).", ""]
     rows: list[dict] = []
     for benchmark in benchmarks:
-        lines += benchmark_section(study, benchmark, seed, reps, out, rows)
+        lines += benchmark_section(study, benchmark, args, rows)
     if study.missing or study.warnings:
         lines += ["## Missing and skipped", ""] + [f"- {m}" for m in study.missing]
         lines += [f"- skipped: `{w}`" for w in study.warnings] + [""]
@@ -685,6 +698,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the bootstrap: the same seed gives the same "
                         "intervals (default: 0)")
     parser.add_argument("--reps", type=int, default=50_000, help="bootstrap resamples (default: 50000, as rliable)")
+    parser.add_argument("--no-per-run", dest="per_run", action="store_false", help="skip the per-run decision "
+                        "figures (one PNG per ULTHO run, about a second each; the aggregated ones stay)")
     args = parser.parse_args(argv)
     for path in args.paths:
         if not os.path.exists(path):
@@ -703,7 +718,7 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"no run found below {', '.join(args.paths)} (no summary.json, relay.json or sweep.json)")
     study.normalize()
     study.label_methods()
-    write_report(study, args.paths, args.out, args.seed, args.reps)
+    write_report(study, args)
     print(f"{PROG}: wrote {os.path.join(args.out, 'report.md')}", file=sys.stderr)
 
 
