@@ -103,7 +103,7 @@ class Study:
             with open(path) as f:
                 data = json.load(f)
         except FileNotFoundError:
-            self.warn(path, "missing")
+            self.warn(path, "missing; skipped")
             return None
         except (OSError, ValueError) as err:
             self.warn(path, f"unreadable ({err.__class__.__name__}: {err}); skipped")
@@ -688,9 +688,11 @@ class OneLineParser(argparse.ArgumentParser):
 
 def main(argv: list[str] | None = None) -> None:
     parser = OneLineParser(
-        prog="ultho_report.py", description=__doc__.split("\n\n")[0] + " " + __doc__.split("\n\n")[1],
-        epilog="example: python ultho_report.py runs/ sweeps/procgen/ --out report/ --seed 0  "
-               "(then open report/report.md)", formatter_class=argparse.RawDescriptionHelpFormatter)
+        prog="ultho_report.py", description=__doc__.replace("``", "").split("\n    python")[0],
+        epilog="examples:\n  python ultho_report.py runs/ --out report/      # then open report/report.md\n"
+               "  python ultho_report.py sweeps/procgen/ runs/my_run --out report/ --seed 1 --no-per-run\n\n"
+               "Unreadable or missing run files are named in one warning each on stderr and skipped.",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("paths", nargs="+", metavar="PATH",
                         help="run directories, relay directories, sweep directories, or folders holding them")
     parser.add_argument("--out", default="report", help="output directory for report.md, aggregate.csv and the "

@@ -194,7 +194,7 @@ def test_bad_arguments_are_one_line_and_exit_2(tmp_path):
     for result, what in ((missing, f"no such path: {tmp_path / 'nowhere'}"), (empty, "no run found below")):
         assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
         assert result.stderr.startswith("ultho_report: error: ") and what in result.stderr
-    assert help_.returncode == 0 and "example: python ultho_report.py runs/" in help_.stdout
+    assert help_.returncode == 0 and "python ultho_report.py runs/ --out report/" in help_.stdout
     assert not (tmp_path / "report").exists()
 
 
