@@ -80,6 +80,7 @@ class Run:
     search_space: dict[str, list] | None = None
     score: float | None = None  # normalized, set by Study.normalize
     label: str = ""  # the method, set by Study.label_methods
+    narrowed: bool = False  # ULTHO on a search space other than its benchmark's widest (set with the label)
 
 
 class Study:
@@ -222,12 +223,11 @@ class Study:
         if summary is None:
             return None
         try:
-            benchmark_of(summary["script"] + ".py")
             str(summary["env_id"]), int(summary["seed"]), int(summary["global_step"])
             if summary["ultho"]:
                 bandit = summary["bandit"]
                 float(bandit["c"]), int(bandit["window"]), dict(bandit["search_space"])
-            raw_score(summary, benchmark_of(summary["script"] + ".py"))
+            raw_score(summary, benchmark_of(summary["script"]))
         except (KeyError, TypeError, ValueError) as err:
             self.warn(path, f"not in the summary.json format ({err.__class__.__name__}: {err}); skipped")
             return None
@@ -242,7 +242,7 @@ class Study:
         summary = self.read_summary(run_dir)
         if summary is None:
             return
-        benchmark = benchmark_of(summary["script"] + ".py")
+        benchmark = benchmark_of(summary["script"])
         bandit = summary["bandit"] if summary["ultho"] else None
         scalars = self.read_scalars(run_dir)
         self.runs.append(Run(
@@ -286,12 +286,14 @@ class Study:
                 continue
             setting = f" (c={run.c:g}, W={run.window})" if run.c is not None else ""
             run.label = ("ULTHO" if run.kind == "ultho" else "Relay-ULTHO") + setting
-            if run.search_space and run.search_space != widest[run.benchmark]:
+            run.narrowed = bool(run.search_space) and run.search_space != widest[run.benchmark]
+            if run.narrowed:
                 run.label += " on " + ", ".join(f"{k}={'/'.join(map(str, v))}" for k, v in run.search_space.items())
 
 
 def benchmark_of(script: str) -> str:
-    match = re.fullmatch(r"ppo_ultho_(\w+)\.py", os.path.basename(str(script)))
+    """The benchmark of a script name, with or without ".py" (summary.json leaves it out, the indexes keep it)."""
+    match = re.fullmatch(r"ppo_ultho_(\w+?)(?:\.py)?", os.path.basename(str(script)))
     if not match or match.group(1) not in BENCHMARKS:
         raise ValueError(f"unknown script {script!r}")
     return match.group(1)
@@ -457,8 +459,8 @@ def decision_panels(share_axes: plt.Axes, value_axes: plt.Axes, runs: list[Run])
     share_axes.legend(loc="upper center", bbox_to_anchor=(0.5, -0.22),
                       ncol=len(space), frameon=False, fontsize=8)
     counts = np.zeros((len(space), max(len(v) for v in space.values())))
-    for run in runs:
-        for _, cluster, value in selections(run):
+    for chosen in filter(lambda c: c is not None, map(selections, runs)):
+        for _, cluster, value in chosen:
             counts[int(cluster), int(value)] += 1
     position, ticks, names = 0, [], []
     for k, (cluster, values) in enumerate(space.items()):
@@ -526,7 +528,7 @@ def per_run_figure(run: Run, name: str, out: str) -> str | None:
 def robustness_figure(runs: list[Run], benchmark: str, grid: tuple[set, set], seed: int, reps: int,
                       out: str) -> tuple[str | None, list[str]]:
     """(file name, the (c, W) cells without scored runs)."""
-    ultho = [r for r in runs if r.kind == "ultho" and r.score is not None and " on " not in r.label]
+    ultho = [r for r in runs if r.kind == "ultho" and r.score is not None and not r.narrowed]
     if not ultho:
         return None, []
     cs = sorted(grid[0] | {r.c for r in ultho})
