@@ -61,6 +61,21 @@ GRID_POINTS = 200
 STEPS = EngFormatter(sep="")
 
 
+class DamagedEventFiles(logging.Handler):
+    """tensorboard's reader reports a truncated or corrupt record only as a debug log line; collect them."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.DEBUG)
+        self.files: set[str] = set()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if str(record.msg).startswith("Truncated record in"):
+            self.files.add(str(record.args[0]))
+
+
+damaged = DamagedEventFiles()
+
+
 @dataclass
 class Run:
     """One scored entry of the report: a training run, or a whole relay (scored by its winner)."""
@@ -576,15 +591,16 @@ def benchmark_section(study: Study, benchmark: str, args: argparse.Namespace, ro
     seed, reps, out = args.seed, args.reps, args.out
     runs = [r for r in study.runs if r.benchmark == benchmark]
     methods = method_order(runs)
-    colors = {label: f"C{i % 10}" for i, label in enumerate(methods)}
+    palette = plt.get_cmap("tab10" if len(methods) <= 10 else "tab20")
+    colors = {label: palette(i) for i, label in enumerate(methods)}
     lines = [f"## {BENCHMARKS[benchmark]}", ""]
 
     lines += ["### Learning curves", ""]
     curves = learning_curves(runs, benchmark, colors, out)
     lines += [f"![learning curves]({curves})", "",
               "Episodic return of the training episodes against environment steps; the line is the mean and the "
-              "band one standard deviation over seeds. Relay-ULTHO shows the winning COI/NOI run."
-              if curves else "No run has TensorBoard return curves.", ""]
+              "band one standard deviation over seeds. Relay-ULTHO shows the winning COI/NOI run.", ""] if curves \
+        else ["No run has TensorBoard return curves.", ""]
 
     envs = sorted({r.env_id for r in runs})
     lines += ["### Aggregate scores", "",
@@ -607,8 +623,10 @@ def benchmark_section(study: Study, benchmark: str, args: argparse.Namespace, ro
     notes = sorted({f"`{r.path}`: {r.score_note}" for r in runs if r.score_note})
     lines += ["", f"Score: {normalization}. Mean and IQM (interquartile mean) over all games x seeds, 95% "
               f"stratified-bootstrap percentile intervals ({reps} resamples of the seeds within each game, "
-              f"seed {seed}). Relay-ULTHO: one score per relay (the winner's), its budget is the three runs'. "
-              "Also in [aggregate.csv](aggregate.csv).", ""] + [f"- {n}" for n in notes] + [""] * bool(notes)
+              f"seed {seed}). "
+              + ("Relay-ULTHO: one score per relay (its winner's); its budget is the three runs'. "
+                 if any(r.kind == "relay" for r in runs) else "")
+              + "Also in [aggregate.csv](aggregate.csv).", ""] + [f"- {n}" for n in notes] + [""] * bool(notes)
 
     lines += ["### Coverage", "", "Scored runs per environment and method (– = none):", "",
               "| method | " + " | ".join(envs) + " |", "|---|" + "---|" * len(envs)]
@@ -657,7 +675,7 @@ def write_report(study: Study, args: argparse.Namespace) -> None:
         lines += benchmark_section(study, benchmark, args, rows)
     if study.missing or study.warnings:
         lines += ["## Missing and skipped", ""] + [f"- {m}" for m in study.missing]
-        lines += [f"- skipped: `{w}`" for w in study.warnings] + [""]
+        lines += [f"- {w}" for w in study.warnings] + [""]
     with open(os.path.join(out, "aggregate.csv"), "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=["benchmark", "method", "games", "runs", "mean", "mean_low",
                                                "mean_high", "iqm", "iqm_low", "iqm_high", "budget_steps_min",
@@ -665,22 +683,7 @@ def write_report(study: Study, args: argparse.Namespace) -> None:
         writer.writeheader()
         writer.writerows(rows)
     with open(os.path.join(out, "report.md"), "w") as f:
-        f.write("\n".join(lines))
-
-
-class DamagedEventFiles(logging.Handler):
-    """tensorboard's reader reports a truncated or corrupt record only as a debug log line; collect them."""
-
-    def __init__(self) -> None:
-        super().__init__(logging.DEBUG)
-        self.files: set[str] = set()
-
-    def emit(self, record: logging.LogRecord) -> None:
-        if record.msg.startswith("Truncated record in"):
-            self.files.add(str(record.args[0]))
-
-
-damaged = DamagedEventFiles()
+        f.write("\n".join(lines) + "\n")
 
 
 class OneLineParser(argparse.ArgumentParser):
