@@ -1,0 +1,245 @@
+"""ultho_report.py on run directories made by real tiny MiniGrid runs, and its aggregates on known numbers."""
+
+import csv
+import json
+import os
+import re
+import shutil
+
+import numpy as np
+import pytest
+
+from helpers import run, run_concurrently, summary
+from ultho_report import PROCGEN_EASY, aggregate_with_interval, fixed_normalization, game_of, raw_score
+
+REPORT = "ultho_report.py"
+SCRIPT = "ppo_ultho_minigrid.py"
+ENVS = ["MiniGrid-Empty-5x5-v0", "MiniGrid-Empty-Random-5x5-v0"]
+SEEDS = [1, 2]
+ULTHO_POINTS = [(5.0, 10), (1.0, 50)]  # two corners of the paper's (c, W) grid; the other two stay missing
+# 4 envs x 64 steps = 256 per rollout, four iterations; minibatch sizes that divide 256.
+TINY = ["--num-envs", "4", "--num-steps", "64", "--total-timesteps", "1024", "--minibatch-size", "128",
+        "--eval-episodes", "2", "--quiet"]
+SPACE = ["--ultho-clusters", "learning_rate", "minibatch_size=64,128,256", "vf_coef"]
+METHODS = ["PPO", "ULTHO (c=1, W=50)", "ULTHO (c=5, W=10)", "Relay-ULTHO (c=5, W=10)"]
+
+
+def sweep_entry(name, env_id, method, c, window, seed, path, status="done", error=None):
+    return {"name": name, "script": SCRIPT, "benchmark": "minigrid", "env_id": env_id, "method": method, "c": c,
+            "window": window, "seed": seed, "path": path, "status": status, "attempts": 1, "error": error}
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    """A sweep directory as sweep.py lays it out: PPO and ULTHO at two (c, W) points x two seeds x two
+    environments, one finished Relay-ULTHO (its COI and NOI runs made after the full run named them) and one
+    failed relay; relay.json and sweep.json written to formats.md."""
+    root = tmp_path_factory.mktemp("study")
+    jobs, entries = [], []
+    for env_id in ENVS:
+        for seed in SEEDS:
+            methods = [("ppo", None, None)] + [("ultho", c, w) for c, w in ULTHO_POINTS]
+            for method, c, window in methods:
+                name = f"{env_id}__{method}{'' if c is None else f'_c{c:g}_w{window}'}__{seed}"
+                extra = ["--no-ultho"] if c is None else SPACE + ["--ultho-c", str(c), "--ultho-window", str(window)]
+                jobs.append(TINY + extra + ["--env-id", env_id, "--seed", str(seed), "--runs-dir",
+                                            str(root / "runs"), "--run-name", name])
+                entries.append(sweep_entry(name, env_id, method, c, window, seed, f"runs/{name}"))
+    for result in run_concurrently(SCRIPT, jobs):
+        assert result.returncode == 0, result.stderr
+
+    full_run = root / "runs" / f"{ENVS[0]}__ultho_c5_w10__1"
+    full = summary(str(full_run))
+    relay_dir = root / "relays" / "relay_1"
+    relay_runs = {"coi": full["bandit"]["coi"], "noi": full["bandit"]["noi"]}
+    clusters = {"learning_rate": ["learning_rate"], "minibatch_size": ["minibatch_size=64,128,256"],
+                "vf_coef": ["vf_coef"]}
+    results = run_concurrently(SCRIPT, [
+        TINY + ["--ultho-clusters", *clusters[cluster], "--env-id", ENVS[0], "--seed", "1", "--runs-dir",
+                str(relay_dir), "--run-name", role]
+        for role, cluster in relay_runs.items()])
+    assert all(r.returncode == 0 for r in results), [r.stderr for r in results]
+    scores = {"full": full["final_score"]} | {role: summary(str(relay_dir / role))["final_score"] for role in relay_runs}
+    winner = "coi" if scores["coi"] >= scores["noi"] else "noi"
+    relay = {"format": 1, "script": SCRIPT, "script_args": TINY, "env_id": ENVS[0], "seed": 1, "status": "done",
+             "full_run": str(full_run), "coi": relay_runs["coi"], "noi": relay_runs["noi"], "coi_run": "coi",
+             "noi_run": "noi", "final_scores": scores, "winner": winner, "winner_run": winner,
+             "final_score": scores[winner], "total_timesteps": 3 * 1024}
+    (relay_dir / "relay.json").write_text(json.dumps(relay))
+    entries.append(sweep_entry("relay_1", ENVS[0], "relay", 5.0, 10, 1, "relays/relay_1"))
+    entries.append(sweep_entry("relay_2", ENVS[0], "relay", 5.0, 10, 2, "relays/relay_2", "failed", "exit status 1"))
+    grid = {"scripts": [SCRIPT], "env_ids": ENVS, "methods": ["ppo", "ultho", "relay"], "c": [1.0, 5.0],
+            "window": [10, 50], "seeds": SEEDS, "total_timesteps": 1024, "extra_args": TINY}
+    (root / "sweep.json").write_text(json.dumps({"format": 1, "grid": grid, "runs": entries}))
+    return root
+
+
+@pytest.fixture(scope="module")
+def reports(study, tmp_path_factory):
+    """The full report, and the same --seed again without the per-run figures, both at once."""
+    out = tmp_path_factory.mktemp("reports")
+    common = [str(study), "--seed", "7", "--reps", "5000"]
+    results = run_concurrently(REPORT, [common + ["--out", str(out / "a")],
+                                        common + ["--out", str(out / "b"), "--no-per-run"]])
+    for result in results:
+        assert result.returncode == 0 and "Traceback" not in result.stderr, result.stderr
+    assert not [line for line in results[0].stderr.splitlines() if "warning" in line]
+    return {name: out / name for name in ("a", "b")}
+
+
+def table(out, benchmark="minigrid") -> dict[str, dict]:
+    with open(out / "aggregate.csv") as f:
+        return {row["method"]: row for row in csv.DictReader(f) if row["benchmark"] == benchmark}
+
+
+def test_every_figure_exists_and_report_md_links_it(reports):
+    out = reports["a"]
+    report = (out / "report.md").read_text()
+    linked = re.findall(r"\]\(([^)]+)\)", report)
+    assert linked and all((out / name).is_file() for name in linked)
+    figures = {str(p.relative_to(out)) for p in out.rglob("*.png")}
+    assert figures <= set(linked)
+    expected = {"curves_minigrid.png", "robustness_minigrid.png", "aggregate.csv"}
+    for point in ("c_1_W_50", "c_5_W_10"):
+        expected |= {f"decision_minigrid_ULTHO_{point}.png", f"bounds_minigrid_ULTHO_{point}.png"}
+    assert expected <= set(linked)
+    per_run = [name for name in linked if name.startswith("runs/")]
+    assert len(per_run) == len(ENVS) * len(SEEDS) * len(ULTHO_POINTS)
+    assert all((out / name).stat().st_size > 10_000 for name in linked if name.endswith(".png"))
+
+
+def test_report_says_what_is_missing(reports):
+    report = (reports["a"] / "report.md").read_text()
+    assert "sweep run `relay_2` (relay, MiniGrid-Empty-5x5-v0, seed 2) is failed: exit status 1" in report
+    assert "No scored ULTHO runs at (c=1, W=10), (c=5, W=50)." in report
+    # Coverage: the single relay has a run on one environment only.
+    assert "| Relay-ULTHO (c=5, W=10) | 1 | – |" in report
+
+
+def test_aggregate_table_matches_min_max_scores_from_the_summaries(study, reports):
+    rows = table(reports["a"])
+    assert list(rows) == METHODS
+    summaries = [summary(str(d)) for d in (study / "runs").iterdir()]
+    relay = json.loads((study / "relays" / "relay_1" / "relay.json").read_text())
+    raw = [(s["env_id"], "PPO" if not s["ultho"] else f"ULTHO (c={s['bandit']['c']:g}, W={s['bandit']['window']})",
+            s["final_score"]) for s in summaries] + [(ENVS[0], METHODS[3], relay["final_score"])]
+    span = {env: (min(x for e, _, x in raw if e == env), max(x for e, _, x in raw if e == env)) for env in ENVS}
+    for method in METHODS:
+        scores = [(x - span[e][0]) / (span[e][1] - span[e][0]) for e, m, x in raw if m == method]
+        assert float(rows[method]["mean"]) == pytest.approx(np.mean(scores))
+        assert int(rows[method]["runs"]) == len(scores)
+    assert rows["PPO"]["budget_steps_min"] == rows["PPO"]["budget_steps_max"] == "1024"
+    assert rows[METHODS[3]]["budget_steps_min"] == "3072"  # three runs
+
+
+def test_each_interval_contains_its_point_estimate(reports):
+    for row in table(reports["a"]).values():
+        for name in ("mean", "iqm"):
+            assert float(row[f"{name}_low"]) <= float(row[name]) <= float(row[f"{name}_high"])
+
+
+def test_same_seed_gives_identical_intervals(reports):
+    assert table(reports["a"]) == table(reports["b"])
+    assert not (reports["b"] / "runs").exists()
+
+
+def test_decision_shares_come_from_the_selections(reports, study):
+    """The per-run shares end at the run's selection counts: the credited ones in summary.json plus the last."""
+    from ultho_report import Study, cumulative_shares
+
+    reader = Study()
+    reader.load_run(str(study / "runs" / f"{ENVS[0]}__ultho_c5_w10__1"))
+    (run,) = reader.runs
+    shares = cumulative_shares(run)
+    iterations = summary(run.path)["iterations"]
+    assert shares.shape == (iterations, 1 + 3) and np.allclose(shares[:, 1:].sum(1), 1)
+    counts = np.rint(shares[-1, 1:] * iterations)
+    credited = np.array(list(summary(run.path)["bandit"]["selections"].values()))
+    assert counts.sum() == credited.sum() + 1 and ((counts - credited) >= 0).all()
+
+
+def test_damaged_files_are_named_once_each_and_skipped(study, tmp_path):
+    copy = tmp_path / "study"
+    shutil.copytree(study, copy)
+    runs = sorted((copy / "runs").iterdir())
+    (runs[0] / "summary.json").write_text("{not json")
+    events = next(p for p in runs[1].iterdir() if p.name.startswith("events.out.tfevents"))
+    events.write_bytes(events.read_bytes()[: events.stat().st_size // 2])
+    (runs[2] / "summary.json").unlink()
+    (copy / "relays" / "relay_1" / "relay.json").write_text('{"format": 1}')
+    # A Procgen run without TensorBoard events next to the MiniGrid ones: mixed benchmarks, a missing file.
+    procgen = copy / "procgen_run"
+    procgen.mkdir()
+    (procgen / "summary.json").write_text(json.dumps(
+        {"script": "ppo_ultho_procgen", "env_id": "procgen-bigfish-v0", "seed": 1, "global_step": 1024,
+         "ultho": False, "bandit": None, "final_score": 30.0, "train_score": 30.0, "test_score": 20.5}))
+    result = run(REPORT, str(copy), "--out", str(tmp_path / "out"), "--reps", "500", "--no-per-run")
+    assert result.returncode == 0 and "Traceback" not in result.stderr, result.stderr
+    warnings = result.stderr.splitlines()[:-1]
+    assert all(line.startswith("ultho_report: warning: ") for line in warnings), warnings
+    named = {runs[0] / "summary.json": "unreadable", events: "truncated", runs[2]: "no summary.json",
+             copy / "relays" / "relay_1" / "relay.json": "relay.json format", procgen: "no TensorBoard event files"}
+    for path, what in named.items():
+        assert len([line for line in warnings if f" {path}: " in line and what in line]) == 1, (path, warnings)
+    assert len(warnings) == len(named)
+    assert float(table(tmp_path / "out", "procgen")["PPO"]["mean"]) == pytest.approx(0.5)  # (20.5 - 1) / (40 - 1)
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "## Procgen" in report and "## MiniGrid" in report and "## Missing and skipped" in report
+
+
+def test_bad_arguments_are_one_line_and_exit_2(tmp_path):
+    (tmp_path / "empty").mkdir()
+    missing, empty, help_ = run_concurrently(REPORT, [[str(tmp_path / "nowhere")], [str(tmp_path / "empty")],
+                                                      ["--help"]])
+    for result, what in ((missing, f"no such path: {tmp_path / 'nowhere'}"), (empty, "no run found below")):
+        assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+        assert result.stderr.startswith("ultho_report: error: ") and what in result.stderr
+    assert help_.returncode == 0 and "python ultho_report.py runs/ --out report/" in help_.stdout
+    assert not (tmp_path / "report").exists()
+
+
+# ---------------------------------------------------------------------- scores and aggregates, known numbers
+def test_procgen_uses_the_test_score_with_the_easy_constants():
+    shaped = {"script": "ppo_ultho_procgen", "env_id": "procgen-bigfish-v0", "final_score": 30.0,
+              "train_score": 30.0, "test_score": 20.5}
+    raw, note = raw_score(shaped, "procgen")
+    assert (raw, note) == (20.5, None)
+    assert fixed_normalization("procgen", shaped["env_id"], raw) == pytest.approx(0.5)  # (20.5 - 1) / (40 - 1)
+    raw, note = raw_score(shaped | {"test_score": None}, "procgen")
+    assert raw == 30.0 and "training score" in note
+    assert fixed_normalization("procgen", "starpilot", 64) == pytest.approx(1.0)
+    assert fixed_normalization("procgen", "procgen:procgen-fruitbot-v0", -1.5) == pytest.approx(0.0)
+    assert game_of("procgen-miner-v0", PROCGEN_EASY) == "miner" and game_of("procgen-maze-v0", PROCGEN_EASY) == "maze"
+
+
+def test_ale_is_human_normalized_and_unknown_games_are_not_scored():
+    shaped = {"script": "ppo_ultho_atari", "env_id": "ALE/Qbert-v5", "final_score": 6809.45,
+              "human_normalized_score": 0.5}
+    raw, _ = raw_score(shaped, "atari")
+    assert fixed_normalization("atari", shaped["env_id"], raw) == pytest.approx(0.5)  # midway random 163.9, human 13455
+    assert fixed_normalization("atari", "BattleZoneNoFrameskip-v4", 37187.5) == pytest.approx(1.0)
+    assert fixed_normalization("atari", "ALE/DoubleDunk-v5", -18.6) == pytest.approx(0.0)
+    assert fixed_normalization("atari", "ALE/Pong-v5", 21.0) is None
+
+
+def test_mean_and_iqm_of_a_known_score_matrix():
+    # Two games x four seeds. All eight scores sorted: 0 1 2 3 4 5 6 10.
+    # mean = 31 / 8 = 3.875; IQM drops int(0.25 * 8) = 2 at each end: (2 + 3 + 4 + 5) / 4 = 3.5.
+    strata = [np.array([0.0, 1.0, 2.0, 10.0]), np.array([3.0, 4.0, 5.0, 6.0])]
+    assert aggregate_with_interval(strata, "mean", 0, 1000)[0] == pytest.approx(3.875)
+    assert aggregate_with_interval(strata, "IQM", 0, 1000)[0] == pytest.approx(3.5)
+    # Five scores: int(1.25) = 1 dropped at each end, as scipy.stats.trim_mean(x, 0.25): (2 + 3 + 4) / 3 = 3.
+    assert aggregate_with_interval([np.array([1.0, 2.0, 3.0, 4.0, 100.0])], "IQM", 0, 1000)[0] == pytest.approx(3.0)
+
+
+def test_bootstrap_is_stratified_by_game_and_seeded():
+    # Game A always scores 0 and game B always 1: every stratified resample keeps two of each, so the mean is
+    # exactly 0.5 in every resample (pooling the games would let it spread from 0 to 1).
+    point, low, high = aggregate_with_interval([np.zeros(2), np.ones(2)], "mean", 3, 2000)
+    assert point == low == high == 0.5
+    strata = [np.array([0.1, 0.35, 0.2, 0.9, 0.55]), np.array([0.3, 0.8, 0.45, 0.6, 0.05])]
+    for name in ("mean", "IQM"):
+        point, low, high = aggregate_with_interval(strata, name, 1, 2000)
+        assert low <= point <= high and low < high
+        assert aggregate_with_interval(strata, name, 1, 2000) == (point, low, high)
+        assert aggregate_with_interval(strata, name, 2, 2000)[1:] != (low, high)
