@@ -278,7 +278,6 @@ def relay(script: str, script_args: list[str], relay_dir: str, from_run: Optiona
 
 def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     """(the tool's options, the script's arguments after --)."""
-    split = argv.index("--") if "--" in argv else len(argv)
     parser = argparse.ArgumentParser(
         prog=TOOL,
         usage=f"{TOOL} [-h] [--from RUN_DIR] [--relay-dir DIR] [--max-retries N] [--quiet] SCRIPT [-- SCRIPT_ARGS...]",
@@ -302,6 +301,13 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     parser.add_argument("--max-retries", type=int, default=2, metavar="N",
                         help="times a failed or interrupted run is resumed from its checkpoint (default: 2)")
     parser.add_argument("--quiet", action="store_true", help="print nothing but errors (also passed to the script)")
+    return parse_split_args(parser, argv)
+
+
+def parse_split_args(parser: argparse.ArgumentParser, argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
+    """(the tool's options before ``--``, the script's arguments after it). argparse's usage-and-message
+    error becomes a UsageError holding the message alone, for the one-line convention."""
+    split = argv.index("--") if "--" in argv else len(argv)
     err = io.StringIO()
     try:
         with contextlib.redirect_stderr(err):
@@ -309,7 +315,6 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     except SystemExit as exit_:
         if exit_.code in (0, None):
             raise
-        # argparse printed usage and message; the one-line convention keeps the message.
         lines = err.getvalue().strip().splitlines()
         raise UsageError(lines[-1].split("error: ", 1)[-1] if lines else "invalid arguments") from None
 

@@ -22,8 +22,8 @@ import sys
 from dataclasses import dataclass, field
 from typing import Optional
 
-from relay_ultho import (RunFailed, UsageError, atomic_write_json, complete_run, read_json, resolve_script,
-                         run_state, script_command)
+from relay_ultho import (RunFailed, UsageError, atomic_write_json, complete_run, parse_split_args, read_json,
+                         resolve_script, run_state, script_command)
 from ultho_bandit import format_value
 
 TOOL = "sweep.py"
@@ -251,7 +251,6 @@ def total_steps(runs: list[Run], budget_of) -> int:
 
 
 def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
-    split = argv.index("--") if "--" in argv else len(argv)
     parser = argparse.ArgumentParser(
         prog=TOOL,
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -291,15 +290,7 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
                            help="times a failed or interrupted run is resumed from its checkpoint (default 2)")
     execution.add_argument("--dry-run", action="store_true",
                            help="print every run's command and the compute it needs; run nothing")
-    err = io.StringIO()
-    try:
-        with contextlib.redirect_stderr(err):
-            return parser.parse_args(argv[:split]), argv[split + 1:]
-    except SystemExit as exit_:
-        if exit_.code in (0, None):
-            raise
-        lines = err.getvalue().strip().splitlines()
-        raise UsageError(lines[-1].split("error: ", 1)[-1] if lines else "invalid arguments") from None
+    return parse_split_args(parser, argv)
 
 
 def main(argv: list[str]) -> int:
