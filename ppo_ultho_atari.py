@@ -132,7 +132,7 @@ class Args:
     episodic_life: bool = True
     """train with a lost life as the end of an episode (the game goes on; scores count whole games)"""
     env_threads: int = 0
-    """threads of the vector environment (0: one per environment, capped at the CPU count)"""
+    """threads of the native vector environment (0: ale-py's default)"""
 
     # ULTHO
     ultho: bool = True
