@@ -301,10 +301,29 @@ def make_envs(args: Args, num_envs: int) -> AtariVectorEnv:
     )
 
 
-def env_seeds(seed: int, iteration: int, num_envs: int) -> np.ndarray:
-    """Reset seeds of the training environments for a run (re)started at `iteration`: the native vector
-    environment's state cannot be saved, so a resumed run starts new games, reproducibly."""
-    return (np.random.SeedSequence([seed, iteration]).generate_state(num_envs) >> 1).astype(np.int64)
+def game_seeds(seed: int, env_indices: np.ndarray, game_numbers: np.ndarray) -> np.ndarray:
+    """Reset seeds of the given games: game g of environment e starts from a seed fixed by (seed, e, g), so
+    that a game in progress is determined by its seed and its actions."""
+    return np.array([np.random.SeedSequence([seed, e, g]).generate_state(1)[0] >> 1
+                     for e, g in zip(env_indices, game_numbers)], dtype=np.int64)
+
+
+def replay(envs: AtariVectorEnv, seeds: np.ndarray, histories: list[np.ndarray]) -> tuple[np.ndarray, dict]:
+    """Rebuilds every environment's game in progress, since the native environment's state cannot be saved:
+    each game restarts from its seed and repeats its actions. The restarts are staggered so that every replay
+    ends at the same step; an environment waiting for its restart idles with no-ops."""
+    lengths = np.array([len(h) for h in histories])
+    offsets = lengths.max() - lengths
+    obs, info = envs.reset(seed=seeds)  # the longest games start now, the others again later
+    for t in range(lengths.max()):
+        actions = np.zeros(len(histories), dtype=np.int64)
+        for k in np.flatnonzero(offsets <= t):
+            actions[k] = histories[k][t - offsets[k]]
+        obs, _, _, _, info = envs.step(actions)
+        starting = offsets == t + 1
+        if starting.any():
+            obs, info = envs.reset(seed=seeds[starting], options={"reset_mask": starting})
+    return obs, info
 
 
 class RunningMeanStd:
@@ -464,14 +483,28 @@ def main(args: Args) -> None:
         torch.set_rng_state(checkpoint["rng"]["torch"])
         minibatch_rng.bit_generator.state = checkpoint["rng"]["minibatch"]
 
-    # Every (re)start begins new games from seeds fixed by (seed, iteration); the games in progress at a
-    # checkpoint are lost on resume, because the native environment's state cannot be saved.
-    next_obs_np, info = envs.reset(seed=env_seeds(args.seed, start_iteration, args.num_envs))
-    next_done_np = np.ones(args.num_envs, dtype=bool)
+    # Every game starts from its own seed and its actions are kept until it ends: a resumed run replays the
+    # games in progress at the checkpoint and goes on exactly as an uninterrupted run.
+    env_indices = np.arange(args.num_envs)
+    if checkpoint is None:
+        games_started = np.zeros(args.num_envs, dtype=np.int64)
+        seeds = game_seeds(args.seed, env_indices, games_started)
+        histories: list[list[int]] = [[] for _ in env_indices]
+        next_obs_np, info = envs.reset(seed=seeds)
+        next_done_np = np.zeros(args.num_envs, dtype=bool)
+        game_return = np.zeros(args.num_envs)  # unclipped score of the game in progress
+        game_length = np.zeros(args.num_envs, dtype=np.int64)
+        discounted_return = np.zeros(args.num_envs)  # per training episode, for the reward normalization
+    else:
+        games = checkpoint["games"]
+        games_started, seeds = games["started"], games["seeds"]
+        histories = [h.tolist() for h in games["actions"]]
+        next_obs_np, info = replay(envs, seeds, games["actions"])
+        if not np.array_equal(next_obs_np, games["next_obs"]):
+            raise RuntimeError("replaying the games in progress did not reproduce the checkpoint's observations")
+        next_done_np, discounted_return = games["next_done"], games["discounted_return"]
+        game_return, game_length = games["return"], games["length"]
     lives = info["lives"]
-    game_return = np.zeros(args.num_envs)  # unclipped score of the game in progress
-    game_length = np.zeros(args.num_envs, dtype=np.int64)
-    discounted_return = np.zeros(args.num_envs)  # per training episode, for the reward normalization
 
     os.makedirs(run_dir, exist_ok=True)
     # purge_step drops events a killed process logged after its last checkpoint.
@@ -491,6 +524,9 @@ def main(args: Args) -> None:
             "agent": agent.state_dict(), "optimizer": optimizer.state_dict(),
             "bandit": bandit.state_dict() if bandit is not None else None,
             "return_rms": dict(return_rms.__dict__),
+            "games": {"started": games_started, "seeds": seeds, "actions": [np.array(h, dtype=np.uint8) for h in histories],
+                      "next_obs": next_obs_np, "next_done": next_done_np, "discounted_return": discounted_return,
+                      "return": game_return, "length": game_length},
             "recent_returns": list(recent_returns), "recent_lengths": list(recent_lengths),
             "rng": {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state(),
                     "minibatch": minibatch_rng.bit_generator.state},
@@ -523,8 +559,18 @@ def main(args: Args) -> None:
             actions[step] = action
             logprobs[step] = log_probs.gather(1, action.unsqueeze(1)).squeeze(1)
             values[step] = value
-            next_obs_np, score, terminated, truncated, info = envs.step(action.cpu().numpy())
+            action_np = action.cpu().numpy()
+            for history, a in zip(histories, action_np.tolist()):
+                history.append(a)
+            next_obs_np, score, terminated, truncated, info = envs.step(action_np)
             game_over = terminated | truncated
+            if game_over.any():
+                # Restart the finished games from seeds of our own instead of the automatic reset's.
+                games_started += game_over
+                seeds[game_over] = game_seeds(args.seed, env_indices[game_over], games_started[game_over])
+                for k in np.flatnonzero(game_over):
+                    histories[k].clear()
+                next_obs_np, info = envs.reset(seed=seeds[game_over], options={"reset_mask": game_over})
             # A new game reports full lives, so only a loss within a game counts.
             life_lost = info["lives"] < lives
             lives = info["lives"]

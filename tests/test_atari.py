@@ -83,33 +83,29 @@ def test_no_ultho_keeps_settings_fixed_and_logs_no_bandit_tags(tmp_path):
     assert s["bandit"] is None and s["settings_in_force"] == {"minibatch_size": 128, "vf_coef": 0.5, "ent_coef": 0.05}
 
 
-def test_killed_and_resumed_run_keeps_everything_up_to_the_checkpoint(tmp_path):
-    """The native vector environment's state cannot be saved, so a resumed run starts new games (seeded by
-    seed and iteration) and its later rollouts differ from an uninterrupted run's. What must hold: the run is
-    identical up to the checkpoint, the restored bandit (its pending choice included) goes on crediting, the
-    step count and the iterations add up, and TensorBoard holds every iteration exactly once."""
-    args = ["--env-id", "Qbert", "--num-envs", "4", "--num-steps", "32", "--total-timesteps", "768",
+def test_killed_and_resumed_run_equals_uninterrupted_run(tmp_path):
+    # Breakout's games are short, so games end before the checkpoint and others are in progress at it: the
+    # resumed run must replay those (the native environment's state cannot be saved) and go on identically.
+    args = ["--env-id", "Breakout", "--num-envs", "4", "--num-steps", "64", "--total-timesteps", "1536",
             "--minibatch-size", "64", "--ultho-clusters", "minibatch_size=32,64,128", "vf_coef", "ent_coef",
-            "--checkpoint-every", "2", "--eval-episodes", "0", "--quiet", "--runs-dir", str(tmp_path)]
+            "--checkpoint-every", "3", "--eval-episodes", "2", "--quiet", "--runs-dir", str(tmp_path)]
     run_ok(SCRIPT, *args, "--run-name", "whole")
     kill_after_first_checkpoint(SCRIPT, str(tmp_path / "killed"), *args, "--run-name", "killed")
     checkpoint = torch.load(tmp_path / "killed" / "checkpoint.pt", weights_only=False)
-    interrupted_at = checkpoint["iteration"]
-    assert interrupted_at < 6 and not (tmp_path / "killed" / "summary.json").exists()
-    assert checkpoint["bandit"]["pending"] is not None  # the checkpoint holds the choice not yet credited
+    assert checkpoint["iteration"] < 6 and not (tmp_path / "killed" / "summary.json").exists()
+    assert checkpoint["games"]["started"].sum() >= 1, "no game ended before the checkpoint"
+    assert any(len(h) > 0 for h in checkpoint["games"]["actions"]), "no game in progress at the checkpoint"
+    assert checkpoint["bandit"]["pending"] is not None  # the choice not yet credited is saved
     run_ok(SCRIPT, "--resume", str(tmp_path / "killed"), "--quiet")
 
     whole, resumed = summary(str(tmp_path / "whole")), summary(str(tmp_path / "killed"))
-    assert whole["global_step"] == resumed["global_step"] == 768 and resumed["iterations"] == 6
-    # Six selections, five credits: the pending choice restored from the checkpoint was credited after resuming.
-    assert sum(resumed["bandit"]["selections"].values()) == sum(whole["bandit"]["selections"].values()) == 5
+    for key in ("global_step", "bandit", "settings_in_force", "final_score", "final_score_episodes", "eval"):
+        assert whole[key] == resumed[key], key
     a, b = scalars(str(tmp_path / "whole")), scalars(str(tmp_path / "killed"))
-    until = interrupted_at * 128
     for tag in ("ultho/selected_cluster", "ultho/selected_value", "ultho/credit", "losses/value_loss",
-                "losses/policy_loss", "hparams/minibatch_size", "hparams/vf_coef", "hparams/ent_coef"):
-        assert [x for x in a[tag] if x[0] <= until] == [x for x in b[tag] if x[0] <= until], tag
-        assert [step for step, _ in a[tag]] == [step for step, _ in b[tag]], tag
-    assert [step for step, _ in b["ultho/selected_cluster"]] == [128 * k for k in range(1, 7)]
+                "losses/policy_loss", "charts/episodic_return", "hparams/minibatch_size", "hparams/ent_coef"):
+        assert a[tag] == b[tag], tag
+    assert len(a["ultho/selected_cluster"]) == 6
 
 
 def test_non_finite_loss_stops_and_keeps_last_good_checkpoint(tmp_path):
