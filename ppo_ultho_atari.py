@@ -291,8 +291,9 @@ def game_rom(env_id: str) -> str | None:
 def make_envs(args: Args, num_envs: int) -> AtariVectorEnv:
     # The emulator's rewards come back unclipped and its episodes are whole games: the loop derives life
     # losses and normalizes rewards itself, so it can score games by their real score. SameStep autoreset: a
-    # finished game's next observation is already the new game's first, as CleanRL's PPO assumes. Games are
-    # cut at 108,000 frames (30 minutes), the usual limit.
+    # finished game's next observation is already the new game's first, as CleanRL's PPO assumes (training
+    # then resets that environment again with a seed of its own, see game_seeds). Games are cut at 108,000
+    # frames (30 minutes), the usual limit.
     return AtariVectorEnv(
         game_rom(args.env_id), num_envs, num_threads=args.env_threads, autoreset_mode="SameStep",
         frameskip=4, maxpool=True, img_height=84, img_width=84, grayscale=True, stack_num=4,
