@@ -1,0 +1,782 @@
+"""PPO with ULTHO hyperparameter optimization on the Arcade Learning Environment, in one file (CleanRL style).
+
+Every PPO iteration the ULTHO bandit (``ultho_bandit.py``, Algorithm 1 of Yuan et al., ICCV 2025) picks one
+hyperparameter cluster and one value in it, the value is applied (``args.<name> = value``) for that
+iteration's update, and the choice is credited with the critic's value estimate afterwards. ``--no-ultho``
+is plain PPO with fixed settings, the paper's baseline.
+
+Environment: ale-py's native vector environment (``ale_py.vector_env.AtariVectorEnv``), whose C++ threads do
+the frame skip (4, max-pooled over the last two frames), the 84x84 grayscale resize, the 4-frame stack and up
+to 30 no-op starts. Training treats a lost life as the end of an episode (CleanRL's EpisodicLifeEnv, without
+resetting the game); rewards are normalized by the running standard deviation of the discounted return (the
+paper's "reward normalization: yes"), not sign-clipped. Every return that is logged or scored is the
+unclipped game score of a whole game (all lives).
+
+Network: CleanRL's Nature CNN (three convolutions, a 512-unit layer, linear actor and critic heads), on the
+observation divided by 255, in channels-last memory order (measured faster on the CPU).
+
+Defaults are the paper's ALE settings (Appendix B, Tables 2-3; ``ULTHO_SPEC.md``).
+
+    python ppo_ultho_atari.py --env-id BattleZone --seed 1
+    tensorboard --logdir runs
+"""
+
+import contextlib
+import dataclasses
+import io
+import json
+import math
+import os
+import random
+import re
+import sys
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Literal, Optional
+
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+import tyro
+from ale_py import roms
+from ale_py.registration import rom_id_to_name
+from ale_py.vector_env import AtariVectorEnv
+from torch.utils.tensorboard import SummaryWriter
+from tqdm import tqdm
+
+from ultho_bandit import ULTHO, format_value, parse_clusters
+
+SCRIPT = "ppo_ultho_atari"
+CHECKPOINT_FORMAT = 1
+
+SEARCH_SPACE = {
+    "minibatch_size": [128, 256, 512],
+    "vf_coef": [0.25, 0.5, 1.0],
+    "ent_coef": [0.01, 0.05, 0.1],
+}
+"""The paper's ALE search space (Table 2): a bare name in --ultho-clusters takes these values."""
+
+TUNABLE = ("learning_rate", "minibatch_size", "vf_coef", "ent_coef", "update_epochs", "clip_coef", "max_grad_norm")
+"""Settings a cluster may override; each is read afresh by every PPO update."""
+
+HUMAN_NORMALIZATION = {
+    "BattleZone": (2360.0, 37187.5),
+    "DoubleDunk": (-18.6, -16.4),
+    "NameThisGame": (2292.3, 8049.0),
+    "Phoenix": (761.4, 7242.6),
+    "Qbert": (163.9, 13455.0),
+}
+"""(random, human) scores of the ALE-5 games (ULTHO_SPEC.md): human-normalized = (R - random) / (human - random)."""
+
+REWARD_CLIP = 10.0
+"""Normalized rewards are clipped to [-10, 10], as in CleanRL's normalized-reward PPO scripts."""
+
+
+@dataclass
+class Args:
+    exp_name: str = SCRIPT
+    """the name of this experiment (part of the default run name)"""
+    seed: int = 1
+    """seed of the experiment (Python, NumPy, torch and the environments)"""
+    torch_deterministic: bool = True
+    """if toggled, `torch.backends.cudnn.deterministic=True`"""
+    cuda: bool = True
+    """if toggled, use CUDA when it is available"""
+    torch_threads: int = 1
+    """CPU threads for torch (measured on 2 cores: one is fastest, the environment's threads take the other)"""
+    run_name: Optional[str] = None
+    """name of the run directory under --runs-dir (default: {env_id}__{exp_name}__{seed}__{unix time})"""
+    runs_dir: str = "runs"
+    """directory that holds the run directories"""
+
+    # Environment and PPO (paper Appendix B, ALE column)
+    env_id: str = "BattleZone"
+    """an ALE game: its name (BattleZone), ROM id (battle_zone), or a Gymnasium id (ALE/BattleZone-v5, BattleZoneNoFrameskip-v4)"""
+    total_timesteps: int = 10_000_000
+    """total environment steps of the run (agent steps; each is 4 emulator frames)"""
+    learning_rate: float = 2.5e-4
+    """Adam learning rate (no annealing: ULTHO may set it)"""
+    num_envs: int = 8
+    """number of parallel environments"""
+    num_steps: int = 128
+    """steps per environment per rollout"""
+    gamma: float = 0.99
+    """discount factor"""
+    gae_lambda: float = 0.95
+    """lambda of generalized advantage estimation"""
+    minibatch_size: int = 256
+    """samples per minibatch (the paper's "batch size"); must divide num_envs * num_steps"""
+    update_epochs: int = 4
+    """epochs over the rollout per update (CleanRL's value for ALE; the paper's table leaves it out)"""
+    norm_adv: bool = True
+    """normalize advantages per minibatch"""
+    clip_coef: float = 0.2
+    """policy and value clipping coefficient (the paper's value clip range 0.2; CleanRL's ppo_atari uses 0.1)"""
+    clip_vloss: bool = True
+    """clip the value loss with clip_coef (the paper's value clip range 0.2)"""
+    ent_coef: float = 0.01
+    """entropy coefficient"""
+    vf_coef: float = 0.5
+    """value loss coefficient"""
+    max_grad_norm: float = 0.5
+    """maximum norm for gradient clipping"""
+    target_kl: Optional[float] = None
+    """stop an update's epochs early once the approximate KL exceeds this (off by default)"""
+    repeat_action_probability: float = 0.0
+    """sticky actions: the chance that the emulator repeats the previous action (0 as in CleanRL and envpool;
+    Machado et al. 2018 recommend 0.25)"""
+    noop_max: int = 30
+    """at most this many random no-op actions start every game"""
+    episodic_life: bool = True
+    """train with a lost life as the end of an episode (the game goes on; scores count whole games)"""
+    env_threads: int = 0
+    """threads of the native vector environment (0: ale-py's default)"""
+
+    # ULTHO
+    ultho: bool = True
+    """tune hyperparameters with ULTHO; --no-ultho runs plain PPO with fixed settings"""
+    ultho_c: float = 5.0
+    """exploration coefficient c of Eqs. 4-5 (paper grid: 1, 5)"""
+    ultho_window: int = 10
+    """window W of the utility's moving average, Eq. 6 (paper grid: 10, 50, 100)"""
+    ultho_clusters: tuple[str, ...] = tuple(SEARCH_SPACE)
+    """search space: NAME takes the paper's values, NAME=V1,V2,... sets them; one cluster = a Relay run"""
+    ultho_utility: Literal["value", "return", "value-after"] = "value"
+    """credit: mean critic value over the next rollout, mean GAE return over it, or the updated critic
+    on this rollout's observations (the paper's Algorithm 1 read literally); see the README"""
+
+    # Evaluation, checkpoints, output
+    eval_episodes: int = 10
+    """whole games of the final policy on fresh environments for summary.json (0: skip)"""
+    checkpoint_every: int = 50
+    """iterations between checkpoints (one is also written at the end)"""
+    resume: Optional[str] = None
+    """run directory to continue to its --total-timesteps; its checkpoint's settings are used"""
+    quiet: bool = False
+    """print nothing but errors"""
+
+
+class UsageError(Exception):
+    """Bad input: reported as one line on stderr with exit status 2."""
+
+
+def parse_args(argv: list[str] | None = None) -> Args:
+    # tyro reports its own errors in a multi-line box; reduce them to our one-line convention.
+    out, err = io.StringIO(), io.StringIO()
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            return tyro.cli(Args, args=argv)
+    except SystemExit as exit_:
+        if exit_.code in (0, None):
+            sys.stdout.write(out.getvalue())
+            raise
+        # The box is: title, rule, message (possibly wrapped), rule, help; rules are ─ or - on a non-terminal.
+        blocks: list[list[str]] = [[]]
+        for line in (err.getvalue() or out.getvalue()).splitlines():
+            line = line.strip(" │╭╮╰╯|")
+            if line and set(line) <= set("─-"):
+                blocks.append([])
+            elif line:
+                blocks[-1].append(line)
+        message = " ".join(blocks[1]) if len(blocks) > 1 and blocks[1] else "invalid arguments"
+        raise UsageError(message) from None
+
+
+def checked_search_space(args: Args, batch_size: int) -> dict[str, list]:
+    """The search space from --ultho-clusters, each value checked as a setting it would override."""
+    try:
+        space = parse_clusters(list(args.ultho_clusters), SEARCH_SPACE, allowed=TUNABLE)
+    except ValueError as err:
+        raise UsageError(f"--ultho-clusters: {err}") from None
+    for name, values in space.items():
+        for value in values:
+            check_setting(name, value, batch_size, f"--ultho-clusters {name}")
+    return space
+
+
+def check_setting(name: str, value, batch_size: int, where: str) -> None:
+    if name in ("minibatch_size", "update_epochs"):
+        if not isinstance(value, int) or value <= 0:
+            raise UsageError(f"{where}: {name} must be a positive integer, got {value!r}")
+        if name == "minibatch_size" and batch_size % value:
+            raise UsageError(f"{where}: minibatch size {value} does not divide the rollout of {batch_size} samples")
+    elif name in ("learning_rate", "clip_coef", "max_grad_norm"):
+        if not (math.isfinite(value) and value > 0):
+            raise UsageError(f"{where}: {name} must be positive, got {value!r}")
+    elif not (math.isfinite(value) and value >= 0):
+        raise UsageError(f"{where}: {name} must be >= 0, got {value!r}")
+
+
+def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
+    """Checks everything before any file is written or environment started; returns (space, checkpoint)."""
+    checkpoint = None
+    if args.resume is not None:
+        path = os.path.join(args.resume, "checkpoint.pt")
+        if not os.path.isfile(path):
+            raise UsageError(f"--resume {args.resume}: no checkpoint.pt there")
+        try:
+            checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+        except Exception as err:  # noqa: BLE001  (any unreadable file is bad input)
+            raise UsageError(f"--resume {args.resume}: checkpoint.pt is unreadable ({err.__class__.__name__})")
+        if not isinstance(checkpoint, dict) or checkpoint.get("script") != SCRIPT:
+            raise UsageError(f"--resume {args.resume}: checkpoint.pt is not a {SCRIPT} checkpoint")
+        if checkpoint.get("format") != CHECKPOINT_FORMAT:
+            raise UsageError(f"--resume {args.resume}: checkpoint format {checkpoint.get('format')!r} is not supported")
+        resumed = Args(**checkpoint["config"])
+        resumed.resume, resumed.quiet, resumed.cuda, resumed.torch_threads = args.resume, args.quiet, args.cuda, args.torch_threads
+        args.__dict__.update(resumed.__dict__)
+    if game_rom(args.env_id) is None:
+        raise UsageError(f"--env-id {args.env_id}: no such ALE game (a name like BattleZone, a ROM id like "
+                         f"battle_zone, or a Gymnasium id like ALE/BattleZone-v5)")
+    for name in ("num_envs", "num_steps", "total_timesteps", "update_epochs", "checkpoint_every", "torch_threads"):
+        if getattr(args, name) <= 0:
+            raise UsageError(f"--{name.replace('_', '-')} must be positive, got {getattr(args, name)}")
+    for name in ("eval_episodes", "noop_max", "env_threads"):
+        if getattr(args, name) < 0:
+            raise UsageError(f"--{name.replace('_', '-')} must be >= 0, got {getattr(args, name)}")
+    if not (0 <= args.repeat_action_probability <= 1):
+        raise UsageError(f"--repeat-action-probability must be in [0, 1], got {args.repeat_action_probability}")
+    batch_size = args.num_envs * args.num_steps
+    if args.total_timesteps < batch_size:
+        raise UsageError(f"--total-timesteps {args.total_timesteps} is less than one rollout ({batch_size} steps)")
+    for name in TUNABLE:
+        check_setting(name, getattr(args, name), batch_size, f"--{name.replace('_', '-')}")
+    if not (0 < args.gamma <= 1):
+        raise UsageError(f"--gamma must be in (0, 1], got {args.gamma}")
+    if not (0 <= args.gae_lambda <= 1):
+        raise UsageError(f"--gae-lambda must be in [0, 1], got {args.gae_lambda}")
+    if args.target_kl is not None and not args.target_kl > 0:
+        raise UsageError(f"--target-kl must be positive, got {args.target_kl}")
+    space = None
+    if args.ultho:
+        space = checked_search_space(args, batch_size)
+        if not (math.isfinite(args.ultho_c) and args.ultho_c >= 0):
+            raise UsageError(f"--ultho-c must be a finite number >= 0, got {args.ultho_c}")
+        if args.ultho_window < 1:
+            raise UsageError(f"--ultho-window must be >= 1, got {args.ultho_window}")
+    if checkpoint is None:
+        if os.sep in run_name(args) or run_name(args) in ("", ".", ".."):
+            raise UsageError(f"--run-name {args.run_name!r} is not a plain directory name")
+        run_dir = os.path.join(args.runs_dir, run_name(args))
+        if os.path.exists(run_dir):
+            raise UsageError(f"run directory {run_dir} already exists: pass --resume {run_dir} or another --run-name")
+    return space, checkpoint
+
+
+def run_name(args: Args) -> str:
+    if args.run_name is None:
+        args.run_name = f"{args.env_id}__{args.exp_name}__{args.seed}__{int(time.time())}"
+    return args.run_name
+
+
+GAMES = {rom_id_to_name(rom): rom for rom in roms.get_all_rom_ids()}
+"""Every ALE game that ships with ale-py: name (BattleZone) -> ROM id (battle_zone)."""
+
+
+def game_name(env_id: str) -> str | None:
+    """The game's name (BattleZone) for its name, ROM id or Gymnasium id; None for no such game."""
+    name = re.sub(r"^ALE/|(NoFrameskip|Deterministic)?-v\d+$", "", env_id)
+    if name in GAMES:
+        return name
+    return next((n for n, rom in GAMES.items() if rom == name), None)
+
+
+def game_rom(env_id: str) -> str | None:
+    name = game_name(env_id)
+    return None if name is None else GAMES[name]
+
+
+def make_envs(args: Args, num_envs: int) -> AtariVectorEnv:
+    # The emulator's rewards come back unclipped and its episodes are whole games: the loop derives life
+    # losses and normalizes rewards itself, so it can score games by their real score. SameStep autoreset: a
+    # finished game's next observation is already the new game's first, as CleanRL's PPO assumes (training
+    # then resets that environment again with a seed of its own, see game_seeds). Games are cut at 108,000
+    # frames (30 minutes), the usual limit.
+    return AtariVectorEnv(
+        game_rom(args.env_id), num_envs, num_threads=args.env_threads, autoreset_mode="SameStep",
+        frameskip=4, maxpool=True, img_height=84, img_width=84, grayscale=True, stack_num=4,
+        noop_max=args.noop_max, repeat_action_probability=args.repeat_action_probability, use_fire_reset=True,
+        episodic_life=False, reward_clipping=False, max_num_frames_per_episode=108_000,
+    )
+
+
+def game_seeds(seed: int, env_indices: np.ndarray, game_numbers: np.ndarray) -> np.ndarray:
+    """Reset seeds of the given games: game g of environment e starts from a seed fixed by (seed, e, g), so
+    that a game in progress is determined by its seed and its actions."""
+    return np.array([np.random.SeedSequence([seed, e, g]).generate_state(1)[0] >> 1
+                     for e, g in zip(env_indices, game_numbers)], dtype=np.int64)
+
+
+def replay(envs: AtariVectorEnv, seeds: np.ndarray, histories: list[np.ndarray]) -> tuple[np.ndarray, dict]:
+    """Rebuilds every environment's game in progress, since the native environment's state cannot be saved:
+    each game restarts from its seed and repeats its actions. The restarts are staggered so that every replay
+    ends at the same step; an environment waiting for its restart idles with no-ops."""
+    lengths = np.array([len(h) for h in histories])
+    offsets = lengths.max() - lengths
+    obs, info = envs.reset(seed=seeds)  # the longest games start now, the others again later
+    for t in range(lengths.max()):
+        actions = np.zeros(len(histories), dtype=np.int64)
+        for k in np.flatnonzero(offsets <= t):
+            actions[k] = histories[k][t - offsets[k]]
+        obs, _, _, _, info = envs.step(actions)
+        starting = offsets == t + 1
+        if starting.any():
+            obs, info = envs.reset(seed=seeds[starting], options={"reset_mask": starting})
+    return obs, info
+
+
+class RunningMeanStd:
+    """Running mean and variance of everything passed to update() (Chan et al.'s parallel formula), as in
+    gymnasium's NormalizeReward."""
+
+    def __init__(self) -> None:
+        self.mean, self.var, self.count = 0.0, 1.0, 1e-4
+
+    def update(self, x: np.ndarray) -> None:
+        batch_mean, batch_var, n = float(x.mean()), float(x.var()), x.size
+        delta, total = batch_mean - self.mean, self.count + n
+        self.mean += delta * n / total
+        self.var = (self.var * self.count + batch_var * n + delta ** 2 * self.count * n / total) / total
+        self.count = total
+
+
+def layer_init(layer: nn.Module, std: float = np.sqrt(2), bias_const: float = 0.0) -> nn.Module:
+    torch.nn.init.orthogonal_(layer.weight, std)
+    torch.nn.init.constant_(layer.bias, bias_const)
+    return layer
+
+
+class Agent(nn.Module):
+    """The Nature CNN with a shared torso, as in CleanRL's ppo_atari."""
+
+    def __init__(self, num_actions: int):
+        super().__init__()
+        self.network = nn.Sequential(
+            layer_init(nn.Conv2d(4, 32, 8, stride=4)), nn.ReLU(),
+            layer_init(nn.Conv2d(32, 64, 4, stride=2)), nn.ReLU(),
+            layer_init(nn.Conv2d(64, 64, 3, stride=1)), nn.ReLU(),
+            nn.Flatten(),
+            layer_init(nn.Linear(64 * 7 * 7, 512)), nn.ReLU(),
+        )
+        self.actor = layer_init(nn.Linear(512, num_actions), std=0.01)
+        self.critic = layer_init(nn.Linear(512, 1), std=1)
+        # Channels-last convolutions are measured faster on the CPU (see the README's Performance section).
+        self.to(memory_format=torch.channels_last)
+
+    def features(self, obs: torch.Tensor) -> torch.Tensor:
+        # Reordered while still uint8 (a quarter of the bytes), then converted in place.
+        return self.network(obs.contiguous(memory_format=torch.channels_last).float().div_(255.0))
+
+    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """uint8 observations (N, 4, 84, 84) -> (action log-probabilities (N, A), values (N,))."""
+        hidden = self.features(obs)
+        return F.log_softmax(self.actor(hidden), dim=-1), self.critic(hidden).squeeze(-1)
+
+    def get_value(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.critic(self.features(obs)).squeeze(-1)
+
+
+def sample(log_probs: torch.Tensor) -> torch.Tensor:
+    """One action per row. argmax(p / E) with E ~ Exp(1) is an exact categorical sample (the exponential
+    race) and costs less than half of torch.multinomial on these tiny batches."""
+    return (log_probs.exp() / torch.empty_like(log_probs).exponential_()).argmax(-1)
+
+
+def atomic_write_bytes(path: str, data: bytes) -> None:
+    tmp = f"{path}.tmp"
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def atomic_save_torch(path: str, obj: dict) -> None:
+    buffer = io.BytesIO()
+    torch.save(obj, buffer)
+    atomic_write_bytes(path, buffer.getvalue())
+
+
+def atomic_save_json(path: str, obj: dict) -> None:
+    atomic_write_bytes(path, (json.dumps(obj, indent=2, allow_nan=False) + "\n").encode())
+
+
+def evaluate(agent: Agent, args: Args, device: torch.device) -> list[float]:
+    """Unclipped scores of --eval-episodes whole games (seeds unused in training), one per environment,
+    sampling the policy as in training."""
+    returns: list[float] = []
+    while len(returns) < args.eval_episodes:
+        n = min(args.eval_episodes - len(returns), 64)
+        envs = make_envs(args, n)
+        first_seed = args.seed + 1_000_000 + len(returns)
+        obs, _ = envs.reset(seed=np.arange(first_seed, first_seed + n))
+        total, running = np.zeros(n), np.ones(n, dtype=bool)
+        while running.any():
+            with torch.inference_mode():
+                log_probs, _ = agent(torch.from_numpy(obs).to(device))
+            obs, reward, terminated, truncated, _ = envs.step(sample(log_probs).cpu().numpy())
+            total += reward * running
+            running &= ~(terminated | truncated)
+        envs.close()
+        returns += total.tolist()
+    return returns
+
+
+def human_normalized(env_id: str, score: float | None) -> float | None:
+    """(score - random) / (human - random) for an ALE-5 game; None for another game or no score."""
+    constants = HUMAN_NORMALIZATION.get(game_name(env_id))
+    if constants is None or score is None:
+        return None
+    random_score, human_score = constants
+    return (score - random_score) / (human_score - random_score)
+
+
+def main(args: Args) -> None:
+    space, checkpoint = validate(args)  # nothing is written or started before this returns
+
+    batch_size = args.num_envs * args.num_steps
+    num_iterations = args.total_timesteps // batch_size
+    # The run's settings before ULTHO changes any; a resumed run keeps its original ones.
+    config = checkpoint["config"] if checkpoint is not None else dataclasses.asdict(args)
+    run_dir = args.resume if checkpoint is not None else os.path.join(args.runs_dir, run_name(args))
+    checkpoint_path = os.path.join(run_dir, "checkpoint.pt")
+    quiet = args.quiet
+
+    random.seed(args.seed)
+    np.random.seed(args.seed)
+    torch.manual_seed(args.seed)
+    torch.backends.cudnn.deterministic = args.torch_deterministic
+    torch.set_num_threads(args.torch_threads)
+    device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
+    minibatch_rng = np.random.default_rng(args.seed)
+
+    bandit = ULTHO(space, c=args.ultho_c, window=args.ultho_window) if args.ultho else None
+    tuned = list(space) if space is not None else list(SEARCH_SPACE)
+
+    envs = make_envs(args, args.num_envs)
+    agent = Agent(envs.single_action_space.n).to(device)
+    optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5, fused=True)
+
+    start_iteration, global_step, elapsed_before = 1, 0, 0.0
+    ultho_seconds = 0.0  # wall time spent on ULTHO's own work, reported as its share of the run
+    return_rms = RunningMeanStd()  # of the discounted return, whose scale normalizes the rewards
+    recent_returns: deque[float] = deque(maxlen=100)
+    recent_lengths: deque[int] = deque(maxlen=100)
+    if checkpoint is not None:
+        agent.load_state_dict(checkpoint["agent"])
+        optimizer.load_state_dict(checkpoint["optimizer"])
+        if bandit is not None:
+            bandit.load_state_dict(checkpoint["bandit"])
+        for name, value in checkpoint["settings"].items():
+            setattr(args, name, value)
+        # The optimizer's saved state carries the learning rate it had; re-apply the setting in force.
+        for group in optimizer.param_groups:
+            group["lr"] = args.learning_rate
+        start_iteration = checkpoint["iteration"] + 1
+        global_step = checkpoint["global_step"]
+        elapsed_before, ultho_seconds = checkpoint["elapsed"], checkpoint["ultho_seconds"]
+        return_rms.__dict__.update(checkpoint["return_rms"])
+        recent_returns.extend(checkpoint["recent_returns"])
+        recent_lengths.extend(checkpoint["recent_lengths"])
+        random.setstate(checkpoint["rng"]["python"])
+        np.random.set_state(checkpoint["rng"]["numpy"])
+        torch.set_rng_state(checkpoint["rng"]["torch"])
+        minibatch_rng.bit_generator.state = checkpoint["rng"]["minibatch"]
+
+    # Every game starts from its own seed and its actions are kept until it ends: a resumed run replays the
+    # games in progress at the checkpoint and goes on exactly as an uninterrupted run.
+    env_indices = np.arange(args.num_envs)
+    if checkpoint is None:
+        games_started = np.zeros(args.num_envs, dtype=np.int64)
+        seeds = game_seeds(args.seed, env_indices, games_started)
+        histories: list[list[int]] = [[] for _ in env_indices]
+        next_obs_np, info = envs.reset(seed=seeds)
+        next_done_np = np.zeros(args.num_envs, dtype=bool)
+        game_return = np.zeros(args.num_envs)  # unclipped score of the game in progress
+        game_length = np.zeros(args.num_envs, dtype=np.int64)
+        discounted_return = np.zeros(args.num_envs)  # per training episode, for the reward normalization
+    else:
+        games = checkpoint["games"]
+        games_started, seeds = games["started"], games["seeds"]
+        histories = [h.tolist() for h in games["actions"]]
+        next_obs_np, info = replay(envs, seeds, games["actions"])
+        if not np.array_equal(next_obs_np, games["next_obs"]):
+            raise RuntimeError("replaying the games in progress did not reproduce the checkpoint's observations")
+        next_done_np, discounted_return = games["next_done"], games["discounted_return"]
+        game_return, game_length = games["return"], games["length"]
+    lives = info["lives"]
+
+    os.makedirs(run_dir, exist_ok=True)
+    # purge_step drops events a killed process logged after its last checkpoint.
+    writer = SummaryWriter(run_dir, purge_step=global_step + 1 if checkpoint is not None else None)
+    if checkpoint is None:
+        writer.add_text(
+            "hyperparameters",
+            "|param|value|\n|-|-|\n" + "\n".join(f"|{k}|{v}|" for k, v in config.items()),
+        )
+
+    def save_checkpoint(iteration: int) -> None:
+        atomic_save_torch(checkpoint_path, {
+            "script": SCRIPT, "format": CHECKPOINT_FORMAT, "config": config,
+            "settings": {name: getattr(args, name) for name in TUNABLE},
+            "iteration": iteration, "global_step": global_step, "elapsed": elapsed_before + time.time() - start_time,
+            "ultho_seconds": ultho_seconds,
+            "agent": agent.state_dict(), "optimizer": optimizer.state_dict(),
+            "bandit": bandit.state_dict() if bandit is not None else None,
+            "return_rms": dict(return_rms.__dict__),
+            "games": {"started": games_started, "seeds": seeds, "actions": [np.array(h, dtype=np.uint8) for h in histories],
+                      "next_obs": next_obs_np, "next_done": next_done_np, "discounted_return": discounted_return,
+                      "return": game_return, "length": game_length},
+            "recent_returns": list(recent_returns), "recent_lengths": list(recent_lengths),
+            "rng": {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state(),
+                    "minibatch": minibatch_rng.bit_generator.state},
+        })
+
+    # Rollout storage: observations stay uint8, the network converts them per batch.
+    obs = torch.zeros((args.num_steps, args.num_envs) + envs.single_observation_space.shape, dtype=torch.uint8, device=device)
+    actions = torch.zeros((args.num_steps, args.num_envs), dtype=torch.long, device=device)
+    logprobs = torch.zeros((args.num_steps, args.num_envs), device=device)
+    values = torch.zeros((args.num_steps, args.num_envs), device=device)
+    rewards = np.zeros((args.num_steps, args.num_envs), dtype=np.float32)
+    dones = np.zeros((args.num_steps, args.num_envs), dtype=np.float32)
+
+    progress = tqdm(total=args.total_timesteps, initial=global_step, unit="step", dynamic_ncols=True,
+                    disable=quiet or not sys.stderr.isatty())
+    report_every = max(1, num_iterations // 20)
+    start_time, start_step = time.time(), global_step
+    for iteration in range(start_iteration, num_iterations + 1):
+        # 1. Collect a rollout with the current policy.
+        iteration_returns: list[float] = []
+        iteration_lengths: list[int] = []
+        for step in range(args.num_steps):
+            global_step += args.num_envs
+            next_obs = torch.from_numpy(next_obs_np).to(device)
+            obs[step] = next_obs
+            dones[step] = next_done_np
+            with torch.inference_mode():
+                log_probs, value = agent(next_obs)
+                action = sample(log_probs)
+            actions[step] = action
+            logprobs[step] = log_probs.gather(1, action.unsqueeze(1)).squeeze(1)
+            values[step] = value
+            action_np = action.cpu().numpy()
+            for history, a in zip(histories, action_np.tolist()):
+                history.append(a)
+            next_obs_np, score, terminated, truncated, info = envs.step(action_np)
+            game_over = terminated | truncated
+            if game_over.any():
+                # Restart the finished games from seeds of our own instead of the automatic reset's.
+                games_started += game_over
+                seeds[game_over] = game_seeds(args.seed, env_indices[game_over], games_started[game_over])
+                for k in np.flatnonzero(game_over):
+                    histories[k].clear()
+                next_obs_np, info = envs.reset(seed=seeds[game_over], options={"reset_mask": game_over})
+            # A new game reports full lives, so only a loss within a game counts.
+            life_lost = info["lives"] < lives
+            lives = info["lives"]
+            next_done_np = game_over | life_lost if args.episodic_life else game_over
+            discounted_return = discounted_return * args.gamma + score
+            return_rms.update(discounted_return)
+            rewards[step] = np.clip(score / np.sqrt(return_rms.var + 1e-8), -REWARD_CLIP, REWARD_CLIP)
+            discounted_return[next_done_np] = 0.0
+            game_return += score
+            game_length += 1
+            if game_over.any():
+                finished = np.flatnonzero(game_over)
+                iteration_returns += game_return[finished].tolist()
+                iteration_lengths += game_length[finished].tolist()
+                game_return[finished] = 0.0
+                game_length[finished] = 0
+        recent_returns.extend(iteration_returns)
+        recent_lengths.extend(iteration_lengths)
+
+        # 2. Generalized advantage estimation.
+        with torch.no_grad():
+            next_value = agent.get_value(torch.from_numpy(next_obs_np).to(device))
+            rewards_t = torch.from_numpy(rewards).to(device)
+            dones_t = torch.from_numpy(dones).to(device)
+            next_done_t = torch.from_numpy(next_done_np.astype(np.float32)).to(device)
+            advantages = torch.zeros_like(rewards_t)
+            lastgaelam = torch.zeros(args.num_envs, device=device)
+            for t in reversed(range(args.num_steps)):
+                if t == args.num_steps - 1:
+                    nextnonterminal, nextvalues = 1.0 - next_done_t, next_value
+                else:
+                    nextnonterminal, nextvalues = 1.0 - dones_t[t + 1], values[t + 1]
+                delta = rewards_t[t] + args.gamma * nextvalues * nextnonterminal - values[t]
+                lastgaelam = delta + args.gamma * args.gae_lambda * nextnonterminal * lastgaelam
+                advantages[t] = lastgaelam
+            returns = advantages + values
+
+        # 3. ULTHO: credit the previous choice with what the updated policy collected, then choose anew.
+        credit = None
+        if bandit is not None:
+            tick = time.perf_counter()
+            if bandit.pending is not None and args.ultho_utility != "value-after":
+                credit = (values if args.ultho_utility == "value" else returns).mean().item()
+                bandit.update(credit)
+            cluster, choice = bandit.select()
+            setattr(args, cluster, choice)
+            if cluster == "learning_rate":
+                for group in optimizer.param_groups:
+                    group["lr"] = choice
+            ultho_seconds += time.perf_counter() - tick
+
+        # 4. PPO update with the settings in force.
+        b_obs = obs.reshape((-1,) + envs.single_observation_space.shape)
+        b_logprobs, b_actions = logprobs.reshape(-1), actions.reshape(-1)
+        b_advantages, b_returns, b_values = advantages.reshape(-1), returns.reshape(-1), values.reshape(-1)
+        loss_sums = torch.zeros(6, device=device)  # policy, value, entropy, old kl, kl, clipfrac
+        num_minibatches = 0
+        for epoch in range(args.update_epochs):
+            permutation = torch.from_numpy(minibatch_rng.permutation(batch_size)).to(device)
+            for start in range(0, batch_size, args.minibatch_size):
+                mb = permutation[start:start + args.minibatch_size]
+                new_log_probs, newvalue = agent(b_obs[mb])
+                newlogprob = new_log_probs.gather(1, b_actions[mb].unsqueeze(1)).squeeze(1)
+                entropy = -(new_log_probs.exp() * new_log_probs).sum(-1)
+                logratio = newlogprob - b_logprobs[mb]
+                ratio = logratio.exp()
+                with torch.no_grad():
+                    old_approx_kl = (-logratio).mean()
+                    approx_kl = ((ratio - 1) - logratio).mean()
+                    clipfrac = ((ratio - 1.0).abs() > args.clip_coef).float().mean()
+
+                mb_advantages = b_advantages[mb]
+                if args.norm_adv:
+                    mb_advantages = (mb_advantages - mb_advantages.mean()) / (mb_advantages.std() + 1e-8)
+                pg_loss1 = -mb_advantages * ratio
+                pg_loss2 = -mb_advantages * torch.clamp(ratio, 1 - args.clip_coef, 1 + args.clip_coef)
+                pg_loss = torch.max(pg_loss1, pg_loss2).mean()
+
+                if args.clip_vloss:
+                    v_loss_unclipped = (newvalue - b_returns[mb]) ** 2
+                    v_clipped = b_values[mb] + torch.clamp(newvalue - b_values[mb], -args.clip_coef, args.clip_coef)
+                    v_loss = 0.5 * torch.max(v_loss_unclipped, (v_clipped - b_returns[mb]) ** 2).mean()
+                else:
+                    v_loss = 0.5 * ((newvalue - b_returns[mb]) ** 2).mean()
+                entropy_loss = entropy.mean()
+                loss = pg_loss - args.ent_coef * entropy_loss + v_loss * args.vf_coef
+
+                optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+                optimizer.step()
+                loss_sums += torch.stack([pg_loss, v_loss, entropy_loss, old_approx_kl, approx_kl, clipfrac]).detach()
+                num_minibatches += 1
+            if args.target_kl is not None and approx_kl.item() > args.target_kl:
+                break
+        pg_mean, v_mean, ent_mean, old_kl_mean, kl_mean, clipfrac_mean = (loss_sums / num_minibatches).tolist()
+        if not all(map(math.isfinite, (pg_mean, v_mean, ent_mean))):
+            progress.close()
+            writer.close()
+            last = f"the last good checkpoint is {checkpoint_path}" if os.path.exists(checkpoint_path) else "no checkpoint was written"
+            print(f"{SCRIPT}: error: non-finite loss at iteration {iteration} (step {global_step}) with "
+                  f"{', '.join(f'{n}={format_value(getattr(args, n))}' for n in tuned)}; stopped, {last}", file=sys.stderr)
+            sys.exit(1)
+
+        if bandit is not None and args.ultho_utility == "value-after":
+            tick = time.perf_counter()
+            with torch.no_grad():
+                credit = torch.cat([agent.get_value(chunk) for chunk in b_obs.split(4096)]).mean().item()
+            bandit.update(credit)
+            ultho_seconds += time.perf_counter() - tick
+
+        # 5. Log.
+        var_y = b_returns.var()
+        explained_var = (1 - (b_returns - b_values).var() / var_y).item() if var_y > 0 else float("nan")
+        elapsed = time.time() - start_time
+        sps = int((global_step - start_step) / elapsed) if elapsed > 0 else 0
+        if iteration_returns:
+            writer.add_scalar("charts/episodic_return", float(np.mean(iteration_returns)), global_step)
+            writer.add_scalar("charts/episodic_length", float(np.mean(iteration_lengths)), global_step)
+        writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"], global_step)
+        writer.add_scalar("charts/SPS", sps, global_step)
+        writer.add_scalar("losses/value_loss", v_mean, global_step)
+        writer.add_scalar("losses/policy_loss", pg_mean, global_step)
+        writer.add_scalar("losses/entropy", ent_mean, global_step)
+        writer.add_scalar("losses/old_approx_kl", old_kl_mean, global_step)
+        writer.add_scalar("losses/approx_kl", kl_mean, global_step)
+        writer.add_scalar("losses/clipfrac", clipfrac_mean, global_step)
+        writer.add_scalar("losses/explained_variance", explained_var, global_step)
+        for name in tuned:
+            writer.add_scalar(f"hparams/{name}", getattr(args, name), global_step)
+        if bandit is not None:
+            tick = time.perf_counter()
+            for tag, scalar in bandit.scalars().items():
+                writer.add_scalar(tag, scalar, global_step)
+            if credit is not None:
+                writer.add_scalar("ultho/credit", credit, global_step)
+            ultho_seconds += time.perf_counter() - tick
+
+        recent = f"{np.mean(recent_returns):.3g}" if recent_returns else "-"
+        choice_text = f"{cluster}={format_value(choice)}" if bandit is not None else "fixed"
+        progress.update(global_step - progress.n)
+        progress.set_postfix_str(f"SPS {sps} | return {recent} | {choice_text}", refresh=False)
+        if progress.disable and not quiet and (iteration % report_every == 0 or iteration == num_iterations):
+            print(f"[{SCRIPT}] step {global_step}/{args.total_timesteps} ({100 * iteration // num_iterations}%) | "
+                  f"SPS {sps} | return {recent} | {choice_text}", flush=True)
+
+        if iteration % args.checkpoint_every == 0 or iteration == num_iterations:
+            save_checkpoint(iteration)
+    progress.close()
+    envs.close()
+
+    wall_time = elapsed_before + time.time() - start_time
+    eval_returns = evaluate(agent, args, device) if args.eval_episodes > 0 else []
+    if eval_returns:
+        writer.add_scalar("eval/return", float(np.mean(eval_returns)), global_step)
+    writer.close()
+    final_score = float(np.mean(recent_returns)) if recent_returns else None
+    summary = {
+        "script": SCRIPT,
+        "env_id": args.env_id,
+        "run_name": args.run_name,
+        "run_dir": run_dir,
+        "seed": args.seed,
+        "settings": config,
+        "ultho": args.ultho,
+        "global_step": global_step,
+        "iterations": num_iterations,
+        "wall_time_s": wall_time,
+        "sps": global_step / wall_time if wall_time > 0 else None,
+        "ultho_seconds": ultho_seconds,
+        "ultho_share": ultho_seconds / wall_time if wall_time > 0 else None,
+        "device": str(device),
+        "final_score": final_score,
+        "final_score_episodes": len(recent_returns),
+        "final_episode_length": float(np.mean(recent_lengths)) if recent_lengths else None,
+        "eval": {
+            "episodes": len(eval_returns),
+            "mean_return": float(np.mean(eval_returns)) if eval_returns else None,
+            "std_return": float(np.std(eval_returns)) if eval_returns else None,
+            "returns": eval_returns,
+        },
+        "settings_in_force": {name: getattr(args, name) for name in tuned},
+        "human_normalized_score": human_normalized(args.env_id, final_score),
+        "bandit": None if bandit is None else {
+            "search_space": bandit.search_space,
+            "c": bandit.c,
+            "window": bandit.window,
+            "utility": args.ultho_utility,
+            "selections": bandit.selections(),
+            "value_selections": bandit.value_selections(),
+            "coi": bandit.cluster_of_interest(),
+            "noi": bandit.neglected_cluster_of_interest(),
+        },
+    }
+    atomic_save_json(os.path.join(run_dir, "summary.json"), summary)
+    if not quiet:
+        score = summary["final_score"]
+        print(f"[{SCRIPT}] done: {global_step} steps in {wall_time:.0f}s, final score "
+              f"{'-' if score is None else f'{score:.3f}'}, summary in {run_dir}/summary.json", flush=True)
+
+
+if __name__ == "__main__":
+    try:
+        main(parse_args())
+    except UsageError as err:
+        print(f"{SCRIPT}: error: {err}", file=sys.stderr)
+        sys.exit(2)

@@ -1,0 +1,233 @@
+"""ppo_ultho_atari.py, run for real on ALE games with tiny budgets (the Nature CNN is the cost on 2 cores)."""
+
+import math
+import os
+
+import pytest
+import torch
+
+from helpers import files_under, kill_after_first_checkpoint, run, run_concurrently, run_ok, scalars, summary
+from ultho_bandit import ULTHO
+
+SCRIPT = "ppo_ultho_atari.py"
+SPACE = {"minibatch_size": [128, 256, 512], "vf_coef": [0.25, 0.5, 1.0], "ent_coef": [0.01, 0.05, 0.1]}
+# Qbert, because its games are short under a near-random policy (about 300-370 steps): 4 envs x 128 steps,
+# four iterations, so games end and a score exists; the paper's search space divides the rollout of 512.
+FOUR_ITERATIONS = ["--env-id", "Qbert", "--num-envs", "4", "--num-steps", "128", "--total-timesteps", "2048",
+                   "--eval-episodes", "2"]
+CHARTS = ["charts/episodic_return", "charts/episodic_length", "charts/SPS", "charts/learning_rate",
+          "losses/value_loss", "losses/policy_loss", "losses/entropy", "losses/approx_kl", "losses/old_approx_kl",
+          "losses/clipfrac", "losses/explained_variance"]
+QBERT_RANDOM, QBERT_HUMAN = 163.9, 13455.0
+
+
+@pytest.fixture(scope="module")
+def smoke_run(tmp_path_factory):
+    runs = tmp_path_factory.mktemp("runs")
+    run_ok(SCRIPT, *FOUR_ITERATIONS, "--runs-dir", str(runs), "--run-name", "smoke")
+    return str(runs / "smoke")
+
+
+def test_smoke_run_writes_every_tensorboard_tag(smoke_run):
+    series = scalars(smoke_run)
+    expected = CHARTS + [f"hparams/{name}" for name in SPACE] + list(ULTHO(SPACE).scalars()) + ["ultho/credit"]
+    missing = [tag for tag in expected if tag not in series]
+    assert not missing, f"missing tags: {missing}"
+    assert [step for step, _ in series["ultho/selected_cluster"]] == [512, 1024, 1536, 2048]
+    # Iteration 1 picks the first cluster's first value (every bound is 0); the tuned setting shows it.
+    assert series["ultho/selected_cluster"][0][1] == 0.0
+    assert series["hparams/minibatch_size"][0][1] == 128
+    assert series["charts/learning_rate"][0][1] == pytest.approx(2.5e-4)
+    assert len(series["ultho/credit"]) == 3  # every iteration but the first credits the one before it
+
+
+def test_smoke_run_records_unclipped_game_scores(smoke_run):
+    # Qbert scores 25 points a cube: unclipped game scores are multiples of 25, clipped or normalized ones are not.
+    s = summary(smoke_run)
+    assert s["eval"]["returns"] and all(r % 25 == 0 for r in s["eval"]["returns"]) and max(s["eval"]["returns"]) > 0
+    total = s["final_score"] * s["final_score_episodes"]
+    assert total > 0 and round(total) % 25 == 0 and total == pytest.approx(round(total)), s
+    assert len(scalars(smoke_run)["charts/episodic_return"]) >= 1
+    # Whole games (all lives), not single lives: a game of Qbert under a near-random policy lasts 200+ steps.
+    assert s["final_episode_length"] > 150, s["final_episode_length"]
+
+
+def test_smoke_run_summary_fields(smoke_run):
+    s = summary(smoke_run)
+    assert s["script"] == "ppo_ultho_atari" and s["env_id"] == "Qbert"
+    assert s["global_step"] == 2048 and s["iterations"] == 4 and s["ultho"] is True
+    assert s["settings"]["learning_rate"] == 2.5e-4 and s["settings"]["num_envs"] == 4
+    assert s["wall_time_s"] > 0 and s["sps"] > 0 and 0 <= s["ultho_share"] < 1
+    assert 0 < s["final_score_episodes"] <= 100
+    assert s["human_normalized_score"] == pytest.approx((s["final_score"] - QBERT_RANDOM) / (QBERT_HUMAN - QBERT_RANDOM))
+    assert s["eval"]["episodes"] == 2 and len(s["eval"]["returns"]) == 2
+    assert sum(s["bandit"]["selections"].values()) == 3  # the last selection is never credited
+    assert s["bandit"]["coi"] in SPACE and s["bandit"]["noi"] in SPACE
+    assert s["bandit"]["search_space"] == SPACE
+    assert set(s["settings_in_force"]) == set(SPACE)
+    checkpoint = torch.load(os.path.join(smoke_run, "checkpoint.pt"), weights_only=False)
+    assert checkpoint["iteration"] == 4 and checkpoint["global_step"] == 2048
+    assert checkpoint["return_rms"]["count"] > 2048  # the reward normalization's statistics are saved
+
+
+def test_no_ultho_keeps_settings_fixed_and_logs_no_bandit_tags(tmp_path):
+    run_ok(SCRIPT, "--env-id", "Qbert", "--num-envs", "4", "--num-steps", "64", "--total-timesteps", "512",
+           "--minibatch-size", "128", "--ent-coef", "0.05", "--no-ultho", "--eval-episodes", "0",
+           "--runs-dir", str(tmp_path), "--run-name", "ppo")
+    series = scalars(str(tmp_path / "ppo"))
+    assert not [tag for tag in series if tag.startswith("ultho/")]
+    assert [v for _, v in series["hparams/minibatch_size"]] == [128, 128]
+    assert [v for _, v in series["hparams/ent_coef"]] == pytest.approx([0.05, 0.05])
+    assert [v for _, v in series["hparams/vf_coef"]] == [0.5, 0.5]
+    s = summary(str(tmp_path / "ppo"))
+    assert s["bandit"] is None and s["settings_in_force"] == {"minibatch_size": 128, "vf_coef": 0.5, "ent_coef": 0.05}
+
+
+def test_killed_and_resumed_run_equals_uninterrupted_run(tmp_path):
+    # Breakout's games are short, so games end before the checkpoint and others are in progress at it: the
+    # resumed run must replay those (the native environment's state cannot be saved) and go on identically.
+    args = ["--env-id", "Breakout", "--num-envs", "4", "--num-steps", "64", "--total-timesteps", "1536",
+            "--minibatch-size", "64", "--ultho-clusters", "minibatch_size=32,64,128", "vf_coef", "ent_coef",
+            "--checkpoint-every", "3", "--eval-episodes", "2", "--quiet", "--runs-dir", str(tmp_path)]
+    run_ok(SCRIPT, *args, "--run-name", "whole")
+    kill_after_first_checkpoint(SCRIPT, str(tmp_path / "killed"), *args, "--run-name", "killed")
+    checkpoint = torch.load(tmp_path / "killed" / "checkpoint.pt", weights_only=False)
+    assert checkpoint["iteration"] < 6 and not (tmp_path / "killed" / "summary.json").exists()
+    assert checkpoint["games"]["started"].sum() >= 1, "no game ended before the checkpoint"
+    assert any(len(h) > 0 for h in checkpoint["games"]["actions"]), "no game in progress at the checkpoint"
+    assert checkpoint["bandit"]["pending"] is not None  # the choice not yet credited is saved
+    run_ok(SCRIPT, "--resume", str(tmp_path / "killed"), "--quiet")
+
+    whole, resumed = summary(str(tmp_path / "whole")), summary(str(tmp_path / "killed"))
+    for key in ("global_step", "bandit", "settings_in_force", "final_score", "final_score_episodes", "eval"):
+        assert whole[key] == resumed[key], key
+    a, b = scalars(str(tmp_path / "whole")), scalars(str(tmp_path / "killed"))
+    for tag in ("ultho/selected_cluster", "ultho/selected_value", "ultho/credit", "losses/value_loss",
+                "losses/policy_loss", "charts/episodic_return", "hparams/minibatch_size", "hparams/ent_coef"):
+        assert a[tag] == b[tag], tag
+    assert len(a["ultho/selected_cluster"]) == 6
+
+
+def test_non_finite_loss_stops_and_keeps_last_good_checkpoint(tmp_path):
+    # Iteration 1 takes the first value (every bound is 0); with c = 1000 iteration 2 must explore the untried 1e38.
+    result = run(SCRIPT, "--env-id", "Qbert", "--num-envs", "2", "--num-steps", "32", "--total-timesteps", "128",
+                 "--minibatch-size", "32", "--ultho-clusters", "learning_rate=0.00025,1e38", "--ultho-c", "1000",
+                 "--checkpoint-every", "1", "--runs-dir", str(tmp_path), "--run-name", "nan")
+    assert result.returncode == 1, result.stderr
+    assert "non-finite loss at iteration 2" in result.stderr and "learning_rate=1e+38" in result.stderr
+    assert "the last good checkpoint is" in result.stderr
+    checkpoint = torch.load(tmp_path / "nan" / "checkpoint.pt", weights_only=False)
+    assert checkpoint["iteration"] == 1
+    assert all(torch.isfinite(p).all() for p in checkpoint["agent"].values())
+    assert not (tmp_path / "nan" / "summary.json").exists()
+
+
+# Every ALE-5 game, each named another way, and a game outside the ALE-5 (no human-normalized score).
+GAMES = [("BattleZone", 2360.0), ("ALE/DoubleDunk-v5", -18.6), ("NameThisGame-v5", 2292.3), ("phoenix", 761.4),
+         ("QbertNoFrameskip-v4", 163.9), ("Breakout", None)]
+
+
+@pytest.fixture(scope="module")
+def game_runs(tmp_path_factory):
+    base = tmp_path_factory.mktemp("games")
+    # 2 envs x 128 steps, two iterations; Breakout and Qbert games end within 256 steps, so those have a score.
+    results = run_concurrently(SCRIPT, [
+        ["--env-id", env_id, "--num-envs", "2", "--num-steps", "128", "--total-timesteps", "512", "--minibatch-size",
+         "128", "--no-ultho", "--eval-episodes", "0", "--quiet", "--runs-dir", str(base), "--run-name", str(k)]
+        for k, (env_id, _) in enumerate(GAMES)])
+    return [(str(base / str(k)), result) for k, result in enumerate(results)]
+
+
+@pytest.mark.parametrize("case", range(len(GAMES)), ids=[g for g, _ in GAMES])
+def test_every_ale5_game_and_any_other_game_runs(game_runs, case):
+    run_dir, result = game_runs[case]
+    env_id, random_score = GAMES[case]
+    assert result.returncode == 0, result.stderr
+    s = summary(run_dir)
+    assert s["env_id"] == env_id and s["global_step"] == 512
+    if s["final_score"] is None or random_score is None:
+        assert s["human_normalized_score"] is None
+    else:
+        assert (s["human_normalized_score"] < 0) == (s["final_score"] < random_score), s
+    if env_id == "Breakout":  # its games are short: at least one ended, scored in whole points
+        total = s["final_score"] * s["final_score_episodes"]
+        assert s["final_score_episodes"] >= 1 and total == pytest.approx(round(total))
+
+
+BAD_INPUTS = [
+    (["--env-id", "NoSuchGame"], "NoSuchGame"),
+    (["--env-id", "MiniGrid-DoorKey-6x6-v0"], "MiniGrid-DoorKey-6x6-v0"),
+    (["--num-envs", "0"], "--num-envs must be positive, got 0"),
+    (["--num-steps", "-3"], "--num-steps must be positive, got -3"),
+    (["--num-steps", "abc"], "abc"),
+    (["--minibatch-size", "300"], "300 does not divide"),
+    (["--ultho-clusters", "momentum"], "momentum"),
+    (["--ultho-clusters", "learning_rate"], "learning_rate"),
+    (["--ultho-clusters", "minibatch_size=100,256"], "100 does not divide"),
+    (["--ultho-clusters", "ent_coef=0.01,-1"], "-1"),
+    (["--ultho-clusters", "vf_coef=0.5,"], "vf_coef=0.5,"),
+    (["--ultho-c", "-1"], "--ultho-c must be a finite number >= 0, got -1.0"),
+    (["--ultho-window", "0"], "--ultho-window must be >= 1, got 0"),
+    (["--ultho-utility", "reward"], "reward"),
+    (["--total-timesteps", "100"], "--total-timesteps 100"),
+    (["--learning-rate", "-0.1"], "-0.1"),
+    (["--gamma", "1.5"], "--gamma must be in (0, 1], got 1.5"),
+    (["--repeat-action-probability", "1.5"], "--repeat-action-probability must be in [0, 1], got 1.5"),
+    (["--noop-max", "-1"], "--noop-max must be >= 0, got -1"),
+    (["--resume", "/no/such/run"], "/no/such/run"),
+    (["--bogus-flag", "1"], "--bogus-flag"),
+    (["--run-name", "a/b"], "'a/b'"),
+]
+
+
+@pytest.fixture(scope="module")
+def bad_input_results(tmp_path_factory):
+    """Every bad input, each with its own empty runs directory, run at once."""
+    base = tmp_path_factory.mktemp("bad")
+    runs = [base / str(k) for k in range(len(BAD_INPUTS))]
+    return list(zip(runs, run_concurrently(SCRIPT, [["--runs-dir", str(r), *a] for r, (a, _) in zip(runs, BAD_INPUTS)])))
+
+
+@pytest.mark.parametrize("case", range(len(BAD_INPUTS)), ids=[" ".join(a) for a, _ in BAD_INPUTS])
+def test_bad_input_exits_2_with_one_line_and_writes_nothing(bad_input_results, case):
+    runs, result = bad_input_results[case]
+    named = BAD_INPUTS[case][1]
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and named in lines[0], result.stderr
+    assert result.stdout == ""
+    assert files_under(str(runs)) == []
+
+
+def test_existing_run_directory_and_foreign_checkpoint_are_refused(tmp_path):
+    (tmp_path / "taken").mkdir()
+    result = run(SCRIPT, "--runs-dir", str(tmp_path), "--run-name", "taken")
+    assert result.returncode == 2 and "already exists" in result.stderr
+    (tmp_path / "junk").mkdir()
+    (tmp_path / "junk" / "checkpoint.pt").write_bytes(b"not a checkpoint")
+    result = run(SCRIPT, "--resume", str(tmp_path / "junk"))
+    assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1
+    assert "unreadable" in result.stderr
+    assert sorted(os.listdir(tmp_path)) == ["junk", "taken"] and os.listdir(tmp_path / "taken") == []
+
+
+def test_help_lists_every_flag():
+    result = run(SCRIPT, "--help")
+    assert result.returncode == 0
+    for flag in ("--env-id", "--total-timesteps", "--minibatch-size", "--ultho-clusters", "--no-ultho",
+                 "--ultho-utility", "--resume", "--checkpoint-every", "--eval-episodes", "--quiet",
+                 "--repeat-action-probability", "--noop-max", "--no-episodic-life"):
+        assert flag in result.stdout
+
+
+@pytest.mark.parametrize("utility", ["return", "value-after"])
+def test_other_utility_signals_credit_every_choice(tmp_path, utility):
+    run_ok(SCRIPT, "--env-id", "Qbert", "--num-envs", "2", "--num-steps", "32", "--total-timesteps", "192",
+           "--minibatch-size", "32", "--ultho-clusters", "minibatch_size=32,64", "vf_coef",
+           "--ultho-utility", utility, "--eval-episodes", "0", "--runs-dir", str(tmp_path), "--run-name", "u")
+    s = summary(str(tmp_path / "u"))
+    credited = sum(s["bandit"]["selections"].values())
+    # value-after credits within the iteration (all three), return credits at the next one (two of three).
+    assert credited == (3 if utility == "value-after" else 2)
+    credits = [v for _, v in scalars(str(tmp_path / "u"))["ultho/credit"]]
+    assert len(credits) == credited and all(math.isfinite(c) for c in credits)
