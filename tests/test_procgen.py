@@ -1,0 +1,215 @@
+"""ppo_ultho_procgen.py, run for real on Procgen with tiny budgets (4 envs x 32 steps instead of 64 x 256)."""
+
+import math
+import os
+
+import pytest
+import torch
+
+from helpers import files_under, kill_after_first_checkpoint, run, run_concurrently, run_ok, scalars, summary
+from ultho_bandit import ULTHO
+
+SCRIPT = "ppo_ultho_procgen.py"
+GAMES = ["bigfish", "bossfight", "caveflyer", "chaser", "climber", "coinrun", "dodgeball", "fruitbot", "heist",
+         "jumper", "leaper", "maze", "miner", "ninja", "plunder", "starpilot"]
+# The paper's minibatch sizes (512-2048) do not divide a 128-sample rollout; the other clusters keep theirs.
+SPACE = {"learning_rate": [2.5e-4, 5e-4, 1e-3], "minibatch_size": [32, 64, 128], "vf_coef": [0.25, 0.5, 1.0],
+         "update_epochs": [3, 2, 1]}
+TINY = ["--num-envs", "4", "--num-steps", "32", "--minibatch-size", "64", "--update-chunk", "48",
+        "--ultho-clusters", "learning_rate", "minibatch_size=32,64,128", "vf_coef", "update_epochs"]
+CHARTS = ["charts/episodic_return", "charts/episodic_length", "charts/SPS", "charts/learning_rate",
+          "losses/value_loss", "losses/policy_loss", "losses/entropy", "losses/approx_kl", "losses/old_approx_kl",
+          "losses/clipfrac", "losses/explained_variance"]
+
+
+@pytest.fixture(scope="module")
+def smoke_run(tmp_path_factory):
+    # Three iterations with a test every iteration: tests at iterations 1 and 2, and the final one at 3.
+    runs = tmp_path_factory.mktemp("runs")
+    run_ok(SCRIPT, *TINY, "--total-timesteps", "384", "--eval-episodes", "3", "--eval-every", "1",
+           "--runs-dir", str(runs), "--run-name", "smoke")
+    return str(runs / "smoke")
+
+
+def test_smoke_run_writes_every_tensorboard_tag(smoke_run):
+    series = scalars(smoke_run)
+    expected = (CHARTS + [f"hparams/{name}" for name in SPACE] + list(ULTHO(SPACE).scalars())
+                + ["ultho/credit", "eval/return", "eval/test_return", "eval/normalized_test_return"])
+    missing = [tag for tag in expected if tag not in series]
+    assert not missing, f"missing tags: {missing}"
+    assert [step for step, _ in series["ultho/selected_cluster"]] == [128, 256, 384]
+    # Iteration 1 picks the first cluster's first value (every bound is 0): the paper's lowest learning rate.
+    assert series["ultho/selected_cluster"][0][1] == 0.0
+    assert series["hparams/learning_rate"][0][1] == pytest.approx(2.5e-4)
+    assert series["charts/learning_rate"][0][1] == pytest.approx(2.5e-4)
+    assert len(series["ultho/credit"]) == 2
+    # --eval-every 1: a test after iterations 1 and 2, then the final one, which alone is also eval/return.
+    assert [step for step, _ in series["eval/test_return"]] == [128, 256, 384]
+    assert series["eval/return"] == [series["eval/test_return"][-1]]
+
+
+def test_smoke_run_summary_has_train_and_test_scores(smoke_run):
+    s = summary(smoke_run)
+    assert s["script"] == "ppo_ultho_procgen" and s["env_id"] == "starpilot"
+    assert s["global_step"] == 384 and s["iterations"] == 3 and s["ultho"] is True
+    assert s["settings"]["num_levels"] == 200 and s["settings"]["start_level"] == 0
+    assert s["settings"]["gamma"] == 0.999 and s["settings"]["norm_reward"] is True
+    assert s["wall_time_s"] > 0 and s["sps"] > 0 and s["peak_rss_mb"] > 0
+    assert s["train_score"] == s["final_score"]
+    assert s["eval"]["episodes"] == 3 and len(s["eval"]["returns"]) == 3
+    assert s["test_score"] == pytest.approx(sum(s["eval"]["returns"]) / 3)
+    # starpilot's easy-mode range is 2.5 .. 64.
+    assert s["normalized_test_score"] == pytest.approx((s["test_score"] - 2.5) / 61.5)
+    if s["train_score"] is not None:
+        assert s["normalized_train_score"] == pytest.approx((s["train_score"] - 2.5) / 61.5)
+    assert sum(s["bandit"]["selections"].values()) == 2  # the last selection is never credited
+    assert s["bandit"]["search_space"] == SPACE
+    checkpoint = torch.load(os.path.join(smoke_run, "checkpoint.pt"), weights_only=False)
+    assert checkpoint["iteration"] == 3 and checkpoint["global_step"] == 384
+    assert len(checkpoint["envs"]) == 4 and all(isinstance(state, bytes) for state in checkpoint["envs"])
+    assert checkpoint["reward_normalizer"]["count"] > 384  # 1e-4 + one update per step, 4 returns each
+
+
+def test_test_episodes_play_levels_outside_the_training_levels(smoke_run):
+    # Training draws level seeds 0..199; the test environments draw from all 2^31 of them.
+    seeds = summary(smoke_run)["eval"]["level_seeds"]
+    assert len(seeds) == 3 and len(set(seeds)) == 3
+    assert all(seed >= 200 for seed in seeds), seeds
+
+
+def test_no_ultho_keeps_settings_fixed_and_logs_no_bandit_tags(tmp_path):
+    run_ok(SCRIPT, "--num-envs", "4", "--num-steps", "32", "--minibatch-size", "64", "--total-timesteps", "256",
+           "--no-ultho", "--learning-rate", "0.002", "--eval-episodes", "0", "--runs-dir", str(tmp_path), "--run-name", "ppo")
+    series = scalars(str(tmp_path / "ppo"))
+    assert not [tag for tag in series if tag.startswith("ultho/") or tag.startswith("eval/")]
+    assert [v for _, v in series["hparams/learning_rate"]] == pytest.approx([0.002, 0.002])
+    assert [v for _, v in series["hparams/minibatch_size"]] == [64, 64]
+    assert [v for _, v in series["hparams/update_epochs"]] == [3, 3]
+    s = summary(str(tmp_path / "ppo"))
+    assert s["bandit"] is None and s["test_score"] is None and s["normalized_test_score"] is None
+    assert s["settings_in_force"] == {"learning_rate": 0.002, "minibatch_size": 64, "vf_coef": 0.5, "update_epochs": 3}
+
+
+def test_killed_and_resumed_run_equals_uninterrupted_run(tmp_path):
+    # Equality needs the games' state (procgen's get_state bytes), the reward normalizer's statistics, the
+    # bandit, the optimizer and every RNG to come back from the checkpoint.
+    args = [*TINY, "--total-timesteps", "768", "--checkpoint-every", "2", "--eval-episodes", "2", "--quiet",
+            "--runs-dir", str(tmp_path)]
+    run_ok(SCRIPT, *args, "--run-name", "whole")
+    kill_after_first_checkpoint(SCRIPT, str(tmp_path / "killed"), *args, "--run-name", "killed")
+    interrupted_at = torch.load(tmp_path / "killed" / "checkpoint.pt", weights_only=False)["iteration"]
+    assert interrupted_at < 6 and not (tmp_path / "killed" / "summary.json").exists()
+    run_ok(SCRIPT, "--resume", str(tmp_path / "killed"), "--quiet")
+
+    whole, resumed = summary(str(tmp_path / "whole")), summary(str(tmp_path / "killed"))
+    for key in ("global_step", "bandit", "settings_in_force", "train_score", "final_score_episodes", "eval", "test_score"):
+        assert whole[key] == resumed[key], key
+    a, b = scalars(str(tmp_path / "whole")), scalars(str(tmp_path / "killed"))
+    for tag in ("ultho/selected_cluster", "ultho/selected_value", "ultho/credit", "losses/value_loss",
+                "losses/policy_loss", "charts/episodic_return", "hparams/learning_rate", "charts/learning_rate"):
+        assert a[tag] == b[tag], tag
+    assert len(a["ultho/selected_cluster"]) == 6
+
+
+def test_non_finite_loss_stops_and_keeps_last_good_checkpoint(tmp_path):
+    # Iteration 1 takes lr=1e-3 (every bound is 0); with c=100 iteration 2 explores the untried 1e38.
+    result = run(SCRIPT, "--num-envs", "4", "--num-steps", "32", "--minibatch-size", "64", "--total-timesteps", "384",
+                 "--ultho-clusters", "learning_rate=0.001,1e38", "--ultho-c", "100", "--checkpoint-every", "1",
+                 "--runs-dir", str(tmp_path), "--run-name", "nan")
+    assert result.returncode == 1, result.stderr
+    assert "non-finite loss at iteration 2" in result.stderr and "learning_rate=1e+38" in result.stderr
+    assert "the last good checkpoint is" in result.stderr
+    checkpoint = torch.load(tmp_path / "nan" / "checkpoint.pt", weights_only=False)
+    assert checkpoint["iteration"] == 1
+    assert all(torch.isfinite(p).all() for p in checkpoint["agent"].values())
+    assert not (tmp_path / "nan" / "summary.json").exists()
+
+
+BAD_INPUTS = [
+    (["--env-id", "pong"], "pong"),
+    (["--env-id", "starpilot-v0"], "starpilot-v0"),
+    (["--num-envs", "0"], "--num-envs must be positive, got 0"),
+    (["--num-steps", "abc"], "abc"),
+    (["--num-levels", "-1"], "--num-levels must be >= 0, got -1"),
+    (["--start-level", "-5"], "--start-level must be >= 0, got -5"),
+    (["--eval-every", "-1"], "--eval-every must be >= 0, got -1"),
+    (["--eval-episodes", "-1"], "--eval-episodes must be >= 0, got -1"),
+    (["--update-chunk", "0"], "--update-chunk must be positive, got 0"),
+    (["--minibatch-size", "3000"], "3000 does not divide"),
+    (["--ultho-clusters", "momentum"], "momentum"),
+    (["--ultho-clusters", "minibatch_size=1000,2048"], "1000 does not divide"),
+    (["--ultho-clusters", "update_epochs=3,0"], "update_epochs must be a positive integer, got 0"),
+    (["--ultho-c", "-1"], "--ultho-c must be a finite number >= 0, got -1.0"),
+    (["--ultho-utility", "reward"], "reward"),
+    (["--total-timesteps", "100"], "--total-timesteps 100"),
+    (["--gamma", "1.5"], "--gamma must be in (0, 1], got 1.5"),
+    (["--resume", "/no/such/run"], "/no/such/run"),
+    (["--run-name", "a/b"], "'a/b'"),
+]
+
+
+@pytest.fixture(scope="module")
+def bad_input_results(tmp_path_factory):
+    """Every bad input, each with its own empty runs directory, run at once."""
+    base = tmp_path_factory.mktemp("bad")
+    runs = [base / str(k) for k in range(len(BAD_INPUTS))]
+    return list(zip(runs, run_concurrently(SCRIPT, [["--runs-dir", str(r), *a] for r, (a, _) in zip(runs, BAD_INPUTS)])))
+
+
+@pytest.mark.parametrize("case", range(len(BAD_INPUTS)), ids=[" ".join(a) for a, _ in BAD_INPUTS])
+def test_bad_input_exits_2_with_one_line_and_writes_nothing(bad_input_results, case):
+    runs, result = bad_input_results[case]
+    named = BAD_INPUTS[case][1]
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and named in lines[0], result.stderr  # also: gym's import notice is silenced
+    assert result.stdout == ""
+    assert files_under(str(runs)) == []
+
+
+def test_existing_run_directory_and_foreign_checkpoint_are_refused(tmp_path):
+    (tmp_path / "taken").mkdir()
+    result = run(SCRIPT, "--runs-dir", str(tmp_path), "--run-name", "taken")
+    assert result.returncode == 2 and "already exists" in result.stderr
+    (tmp_path / "junk").mkdir()
+    (tmp_path / "junk" / "checkpoint.pt").write_bytes(b"not a checkpoint")
+    result = run(SCRIPT, "--resume", str(tmp_path / "junk"))
+    assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1
+    assert "unreadable" in result.stderr
+    assert sorted(os.listdir(tmp_path)) == ["junk", "taken"] and os.listdir(tmp_path / "taken") == []
+
+
+def test_help_lists_every_flag():
+    result = run(SCRIPT, "--help")
+    assert result.returncode == 0
+    for flag in ("--env-id", "--num-levels", "--start-level", "--total-timesteps", "--minibatch-size",
+                 "--update-chunk", "--norm-reward", "--ultho-clusters", "--no-ultho", "--ultho-utility", "--resume",
+                 "--checkpoint-every", "--eval-episodes", "--eval-every", "--quiet"):
+        assert flag in result.stdout
+
+
+@pytest.mark.parametrize("utility", ["return", "value-after"])
+def test_other_utility_signals_credit_every_choice(tmp_path, utility):
+    run_ok(SCRIPT, *TINY, "--total-timesteps", "384", "--ultho-utility", utility, "--eval-episodes", "0",
+           "--runs-dir", str(tmp_path), "--run-name", "u")
+    s = summary(str(tmp_path / "u"))
+    credited = sum(s["bandit"]["selections"].values())
+    # value-after credits within the iteration (all three), return credits at the next one (two of three).
+    assert credited == (3 if utility == "value-after" else 2)
+    credits = [v for _, v in scalars(str(tmp_path / "u"))["ultho/credit"]]
+    assert len(credits) == credited and all(math.isfinite(c) for c in credits)
+
+
+def test_games_are_named_and_the_refusal_lists_all_sixteen(bad_input_results):
+    _, result = bad_input_results[0]  # --env-id pong
+    assert all(game in result.stderr for game in GAMES), result.stderr
+
+
+@pytest.mark.parametrize("game", ["coinrun", "maze", "bigfish"])
+def test_other_procgen_games_train_by_name(tmp_path, game):
+    # A platformer, a maze and a game that grows the agent: different observation content, same pipeline.
+    run_ok(SCRIPT, "--env-id", game, "--num-envs", "2", "--num-steps", "16", "--minibatch-size", "32",
+           "--total-timesteps", "32", "--ultho-clusters", "learning_rate", "vf_coef", "update_epochs",
+           "--eval-episodes", "1", "--quiet", "--runs-dir", str(tmp_path), "--run-name", game)
+    s = summary(str(tmp_path / game))
+    assert s["env_id"] == game and s["global_step"] == 32 and s["eval"]["episodes"] == 1
