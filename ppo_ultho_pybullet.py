@@ -431,8 +431,8 @@ class Agent(nn.Module):
 
 
 def mlp(layers: nn.Sequential, x: torch.Tensor) -> torch.Tensor:
-    """layers(x) for a stack of Linear and Tanh, without nn.Module's per-call dispatch, which triples the cost
-    of the one-row forward of every rollout step and adds a fifth to each minibatch."""
+    """layers(x) for a stack of Linear and Tanh, without nn.Module's per-call dispatch (measured: that dispatch
+    triples the cost of the one-row forward of every rollout step)."""
     for layer in layers:
         x = F.linear(x, layer.weight, layer.bias) if isinstance(layer, nn.Linear) else torch.tanh(x)
     return x
@@ -442,8 +442,8 @@ HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
 
 
 def gaussian_log_prob(actions: torch.Tensor, mean: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
-    """log N(actions; mean, diag(exp(log_std))^2) summed over action dimensions, written out: about twice as
-    fast as torch.distributions.Normal on these tiny batches."""
+    """log N(actions; mean, diag(exp(log_std))^2) summed over action dimensions, written out: with its backward
+    about 1.5x as fast as torch.distributions.Normal's log_prob and entropy on a minibatch of 64 (measured)."""
     z = (actions - mean) * (-log_std).exp()
     return -0.5 * z.square().sum(-1) - (log_std.sum() + HALF_LOG_2PI * log_std.numel())
 

@@ -99,7 +99,7 @@ def test_killed_and_resumed_run_equals_uninterrupted_run(tmp_path):
     # HalfCheetah's episodes run 1000 steps, so the killed run's checkpoint falls inside an episode that the
     # resumed run must restore by replaying it; Hopper's short episodes would hide a wrong restore less well.
     args = ["--env-id", "HalfCheetahBulletEnv-v0", "--num-steps", "128", "--total-timesteps", "1536",
-            "--update-epochs", "2", "--ultho-clusters", "learning_rate", "minibatch_size", "vf_coef",
+            "--update-epochs", "2", "--ultho-clusters", "learning_rate", "minibatch_size=32,64,128", "vf_coef",
             "--checkpoint-every", "2", "--eval-episodes", "1", "--quiet", "--runs-dir", str(tmp_path)]
     run_ok(SCRIPT, *args, "--run-name", "whole")
     kill_after_first_checkpoint(SCRIPT, str(tmp_path / "killed"), *args, "--run-name", "killed")
@@ -254,7 +254,7 @@ def test_ppo_learns_inverted_pendulum(tmp_path):
 
 @pytest.mark.parametrize("env_id", ["AntBulletEnv-v0", "Walker2DBulletEnv-v0", "Pendulum-v1"])
 def test_other_environments_run(tmp_path, env_id):
-    run_ok(SCRIPT, "--env-id", env_id, "--num-envs", "2", "--num-steps", "64", "--total-timesteps", "128",
+    run_ok(SCRIPT, "--env-id", env_id, "--num-envs", "2", "--num-steps", "128", "--total-timesteps", "256",
            "--update-epochs", "1", "--eval-episodes", "1", "--quiet", "--runs-dir", str(tmp_path), "--run-name", "other")
     s = summary(str(tmp_path / "other"))
-    assert s["env_id"] == env_id and s["global_step"] == 128 and s["eval"]["episodes"] == 1
+    assert s["env_id"] == env_id and s["global_step"] == 256 and s["eval"]["episodes"] == 1
