@@ -93,6 +93,13 @@ NORM_EPSILON = 1e-8
 
 @dataclass
 class Args:
+    """PPO with ULTHO on PyBullet continuous control. Observations are normalized with a running mean and
+    variance over every observation the policy sees (gymnasium's RunningMeanStd: count starting at 1e-4,
+    variance at 1), as (obs - mean) / sqrt(var + 1e-8) clipped to +-10; rewards are divided by sqrt(var + 1e-8)
+    of the running discounted return (reset at termination) and clipped to +-10: the semantics of gymnasium's
+    NormalizeObservation/NormalizeReward as CleanRL's ppo_continuous_action.py uses them, kept as plain arrays
+    that every checkpoint stores and the final evaluation uses frozen."""
+
     exp_name: str = SCRIPT
     """the name of this experiment (part of the default run name)"""
     seed: int = 1
@@ -141,10 +148,6 @@ class Args:
     """maximum norm for gradient clipping"""
     target_kl: Optional[float] = None
     """stop an update's epochs early once the approximate KL exceeds this (off by default)"""
-    # Observation normalization: running mean/var (gymnasium's RunningMeanStd: count starts at 1e-4, var at 1)
-    # over every observation the policy sees, (obs - mean) / sqrt(var + 1e-8) clipped to +-10. Reward
-    # normalization: the reward divided by sqrt(var + 1e-8) of the running discounted return (reset at
-    # termination), clipped to +-10. Both as gymnasium's wrappers and CleanRL's ppo_continuous_action.py.
 
     # ULTHO
     ultho: bool = True
@@ -286,7 +289,8 @@ def check_env_id(env_id: str) -> None:
             warnings.simplefilter("ignore")
             env = gym.make(env_id)
     except Exception as err:  # noqa: BLE001  (a missing dependency, for example)
-        raise UsageError(f"--env-id {env_id}: cannot be constructed ({err.__class__.__name__}: {err})") from None
+        reason = (str(err).splitlines() or [""])[0]
+        raise UsageError(f"--env-id {env_id}: cannot be constructed ({err.__class__.__name__}: {reason})") from None
     action_space, observation_space = env.action_space, env.observation_space
     env.close()
     if not isinstance(action_space, gym.spaces.Box):
