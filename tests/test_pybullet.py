@@ -82,6 +82,29 @@ def test_final_evaluation_uses_the_trained_normalization_frozen(smoke_run):
     assert script.evaluate(agent, args, torch.device("cpu"), script.RunningMeanStd((15,))) != returns
 
 
+def test_environments_get_their_own_direct_physics_client():
+    """With a shared-memory physics server running (a pybullet GUI, say), a plain BulletClient() and so an
+    environment left to itself join it, all in one world; the script's environments connect in DIRECT mode."""
+    import gymnasium as gym
+    import pybullet
+
+    import ppo_ultho_pybullet as script
+
+    server = pybullet.connect(pybullet.SHARED_MEMORY_SERVER)
+    try:
+        left_to_itself = gym.make("HopperBulletEnv-v0")
+        left_to_itself.reset(seed=0)
+        assert left_to_itself.unwrapped._p.getConnectionInfo()["connectionMethod"] == pybullet.SHARED_MEMORY
+        training, evaluation = script.make_env("HopperBulletEnv-v0"), script.make_env("HopperBulletEnv-v0")
+        clients = [env.unwrapped._p for env in (training, evaluation)]
+        assert [c.getConnectionInfo()["connectionMethod"] for c in clients] == [pybullet.DIRECT, pybullet.DIRECT]
+        assert len({c._client for c in clients} | {server, left_to_itself.unwrapped._p._client}) == 4
+        for env in (left_to_itself, training, evaluation):
+            env.close()
+    finally:
+        pybullet.disconnect(server)
+
+
 def test_no_ultho_keeps_settings_fixed_and_logs_no_bandit_tags(tmp_path):
     run_ok(SCRIPT, *TWO_ITERATIONS, "--no-ultho", "--learning-rate", "0.0005", "--runs-dir", str(tmp_path),
            "--run-name", "ppo")
