@@ -1,0 +1,836 @@
+"""PPO with ULTHO hyperparameter optimization on PyBullet continuous control, in one file (CleanRL style).
+
+Every PPO iteration the ULTHO bandit (``ultho_bandit.py``, Algorithm 1 of Yuan et al., ICCV 2025) picks one
+hyperparameter cluster and one value in it, the value is applied (``args.<name> = value``) for that
+iteration's update, and the choice is credited with the critic's value estimate afterwards. ``--no-ultho``
+is plain PPO with fixed settings, the paper's baseline.
+
+Network: CleanRL's ``ppo_continuous_action.py`` agent: separate actor and critic MLPs (two 64-unit tanh
+layers each) and a Gaussian policy whose log standard deviation is a state-independent parameter. Actions
+are clipped to the action space's bounds when sent to the environment; the unclipped sample is what PPO
+scores. Observations and rewards are normalized with running statistics kept in this file (plain arrays that
+every checkpoint stores and the final evaluation uses frozen).
+
+Environments: the PyBullet locomotion tasks of ``pybullet-envs-gymnasium`` (``AntBulletEnv-v0``,
+``HalfCheetahBulletEnv-v0``, ``HopperBulletEnv-v0``, ``Walker2DBulletEnv-v0``, ...) and any gymnasium
+environment with a Box action space and a state-vector observation. Defaults are the paper's PyBullet
+settings (Appendix B, Tables 2-3; ``ULTHO_SPEC.md``).
+
+    python ppo_ultho_pybullet.py --env-id HopperBulletEnv-v0 --seed 1
+    tensorboard --logdir runs
+"""
+
+import contextlib
+import dataclasses
+import functools
+import io
+import json
+import math
+import os
+import random
+import sys
+import time
+import warnings
+from collections import deque
+from dataclasses import dataclass
+from typing import Literal, Optional
+from unittest import mock
+
+import gymnasium as gym
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+import tyro
+from torch.utils.tensorboard import SummaryWriter
+from tqdm import tqdm
+
+from ultho_bandit import ULTHO, format_value, parse_clusters
+
+
+@contextlib.contextmanager
+def silenced_c_output():
+    """pybullet's C code prints a banner on stderr at import and "argv[0]=" on stdout for every new physics
+    client; neither is ours to show (bad input must print one line, --quiet nothing)."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = os.dup(1), os.dup(2)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 1)
+        os.dup2(devnull, 2)
+        yield
+    finally:
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in (*saved, devnull):
+            os.close(fd)
+
+
+with silenced_c_output():
+    import pybullet
+    import pybullet_envs_gymnasium  # noqa: F401  (registers the *BulletEnv-v0 environments)
+    from pybullet_utils import bullet_client
+
+SCRIPT = "ppo_ultho_pybullet"
+CHECKPOINT_FORMAT = 1
+
+SEARCH_SPACE = {
+    "learning_rate": [2e-4, 5e-4, 7e-4],
+    "minibatch_size": [64, 128, 256],
+    "vf_coef": [0.25, 0.5, 1.0],
+}
+"""The paper's PyBullet search space (Table 2): a bare name in --ultho-clusters takes these values."""
+
+TUNABLE = ("learning_rate", "minibatch_size", "vf_coef", "ent_coef", "update_epochs", "clip_coef", "max_grad_norm")
+"""Settings a cluster may override; each is read afresh by every PPO update."""
+
+OBS_CLIP = 10.0
+"""Normalized observations and rewards are clipped to +-OBS_CLIP (CleanRL's TransformObservation/Reward)."""
+NORM_EPSILON = 1e-8
+"""Added to the variance under the square root, as gymnasium's NormalizeObservation/NormalizeReward do."""
+
+
+@dataclass
+class Args:
+    """PPO with ULTHO on PyBullet continuous control. Observations are normalized with a running mean and
+    variance over every observation the policy sees (gymnasium's RunningMeanStd: count starting at 1e-4,
+    variance at 1), as (obs - mean) / sqrt(var + 1e-8) clipped to +-10; rewards are divided by sqrt(var + 1e-8)
+    of the running discounted return (reset at termination) and clipped to +-10: the semantics of gymnasium's
+    NormalizeObservation/NormalizeReward as CleanRL's ppo_continuous_action.py uses them, kept as plain arrays
+    that every checkpoint stores and the final evaluation uses frozen."""
+
+    exp_name: str = SCRIPT
+    """the name of this experiment (part of the default run name)"""
+    seed: int = 1
+    """seed of the experiment (Python, NumPy, torch and every episode's environment seed)"""
+    torch_deterministic: bool = True
+    """if toggled, `torch.backends.cudnn.deterministic=True`"""
+    cuda: bool = True
+    """if toggled, use CUDA when it is available"""
+    torch_threads: int = 1
+    """CPU threads for torch; one is fastest for this small network (2 threads cost SPS on 2 cores)"""
+    run_name: Optional[str] = None
+    """name of the run directory under --runs-dir (default: {env_id}__{exp_name}__{seed}__{unix time})"""
+    runs_dir: str = "runs"
+    """directory that holds the run directories"""
+
+    # Environment and PPO (paper Appendix B, PyBullet column)
+    env_id: str = "HalfCheetahBulletEnv-v0"
+    """the id of a gymnasium environment with a Box action space and a state-vector observation"""
+    total_timesteps: int = 2_000_000
+    """total environment steps of the run"""
+    learning_rate: float = 2e-4
+    """Adam learning rate (no annealing: ULTHO sets it)"""
+    num_envs: int = 1
+    """number of environments, stepped in turn (they share one observation and one reward normalizer)"""
+    num_steps: int = 2048
+    """steps per environment per rollout"""
+    gamma: float = 0.99
+    """discount factor (also the discount of the return whose running std scales the rewards)"""
+    gae_lambda: float = 0.95
+    """lambda of generalized advantage estimation"""
+    minibatch_size: int = 64
+    """samples per minibatch (the paper's "batch size"); must divide num_envs * num_steps"""
+    update_epochs: int = 10
+    """epochs over the rollout per update (the usual value for PyBullet; the paper's table leaves it out)"""
+    norm_adv: bool = True
+    """normalize advantages per minibatch"""
+    clip_coef: float = 0.2
+    """policy clipping coefficient"""
+    clip_vloss: bool = False
+    """clip the value loss with clip_coef (off: the paper's value clip range for PyBullet is "none")"""
+    ent_coef: float = 0.0
+    """entropy coefficient"""
+    vf_coef: float = 0.5
+    """value loss coefficient"""
+    max_grad_norm: float = 0.5
+    """maximum norm for gradient clipping"""
+    target_kl: Optional[float] = None
+    """stop an update's epochs early once the approximate KL exceeds this (off by default)"""
+
+    # ULTHO
+    ultho: bool = True
+    """tune hyperparameters with ULTHO; --no-ultho runs plain PPO with fixed settings"""
+    ultho_c: float = 5.0
+    """exploration coefficient c of Eqs. 4-5 (paper grid: 1, 5)"""
+    ultho_window: int = 10
+    """window W of the utility's moving average, Eq. 6 (paper grid: 10, 50, 100)"""
+    ultho_clusters: tuple[str, ...] = tuple(SEARCH_SPACE)
+    """search space: NAME takes the paper's values, NAME=V1,V2,... sets them; one cluster = a Relay run"""
+    ultho_utility: Literal["value", "return", "value-after"] = "value"
+    """credit: mean critic value over the next rollout, mean GAE return over it, or the updated critic
+    on this rollout's observations (the paper's Algorithm 1 read literally); see the README"""
+
+    # Evaluation, checkpoints, output
+    eval_episodes: int = 10
+    """episodes of the final policy on fresh environments for summary.json, with the training's observation
+    normalization frozen (0: skip)"""
+    checkpoint_every: int = 25
+    """iterations between checkpoints (one is also written at the end)"""
+    resume: Optional[str] = None
+    """run directory to continue to its --total-timesteps; its checkpoint's settings are used"""
+    quiet: bool = False
+    """print nothing but errors"""
+
+
+class UsageError(Exception):
+    """Bad input: reported as one line on stderr with exit status 2."""
+
+
+def parse_args(argv: list[str] | None = None) -> Args:
+    # tyro reports its own errors in a multi-line box; reduce them to our one-line convention.
+    out, err = io.StringIO(), io.StringIO()
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            return tyro.cli(Args, args=argv)
+    except SystemExit as exit_:
+        if exit_.code in (0, None):
+            sys.stdout.write(out.getvalue())
+            raise
+        # The box is: title, rule, message (possibly wrapped), rule, help; rules are ─ or - on a non-terminal.
+        blocks: list[list[str]] = [[]]
+        for line in (err.getvalue() or out.getvalue()).splitlines():
+            line = line.strip(" │╭╮╰╯|")
+            if line and set(line) <= set("─-"):
+                blocks.append([])
+            elif line:
+                blocks[-1].append(line)
+        message = " ".join(blocks[1]) if len(blocks) > 1 and blocks[1] else "invalid arguments"
+        raise UsageError(message) from None
+
+
+def checked_search_space(args: Args, batch_size: int) -> dict[str, list]:
+    """The search space from --ultho-clusters, each value checked as a setting it would override."""
+    try:
+        space = parse_clusters(list(args.ultho_clusters), SEARCH_SPACE, allowed=TUNABLE)
+    except ValueError as err:
+        raise UsageError(f"--ultho-clusters: {err}") from None
+    for name, values in space.items():
+        for value in values:
+            check_setting(name, value, batch_size, f"--ultho-clusters {name}")
+    return space
+
+
+def check_setting(name: str, value, batch_size: int, where: str) -> None:
+    if name in ("minibatch_size", "update_epochs"):
+        if not isinstance(value, int) or value <= 0:
+            raise UsageError(f"{where}: {name} must be a positive integer, got {value!r}")
+        if name == "minibatch_size" and batch_size % value:
+            raise UsageError(f"{where}: minibatch size {value} does not divide the rollout of {batch_size} samples")
+    elif name in ("learning_rate", "clip_coef", "max_grad_norm"):
+        if not (math.isfinite(value) and value > 0):
+            raise UsageError(f"{where}: {name} must be positive, got {value!r}")
+    elif not (math.isfinite(value) and value >= 0):
+        raise UsageError(f"{where}: {name} must be >= 0, got {value!r}")
+
+
+def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
+    """Checks everything before any file is written or environment started; returns (space, checkpoint)."""
+    checkpoint = None
+    if args.resume is not None:
+        path = os.path.join(args.resume, "checkpoint.pt")
+        if not os.path.isfile(path):
+            raise UsageError(f"--resume {args.resume}: no checkpoint.pt there")
+        try:
+            checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+        except Exception as err:  # noqa: BLE001  (any unreadable file is bad input)
+            raise UsageError(f"--resume {args.resume}: checkpoint.pt is unreadable ({err.__class__.__name__})")
+        if not isinstance(checkpoint, dict) or checkpoint.get("script") != SCRIPT:
+            raise UsageError(f"--resume {args.resume}: checkpoint.pt is not a {SCRIPT} checkpoint")
+        if checkpoint.get("format") != CHECKPOINT_FORMAT:
+            raise UsageError(f"--resume {args.resume}: checkpoint format {checkpoint.get('format')!r} is not supported")
+        resumed = Args(**checkpoint["config"])
+        resumed.resume, resumed.quiet, resumed.cuda, resumed.torch_threads = args.resume, args.quiet, args.cuda, args.torch_threads
+        args.__dict__.update(resumed.__dict__)
+    check_env_id(args.env_id)
+    for name in ("num_envs", "num_steps", "total_timesteps", "update_epochs", "checkpoint_every", "torch_threads"):
+        if getattr(args, name) <= 0:
+            raise UsageError(f"--{name.replace('_', '-')} must be positive, got {getattr(args, name)}")
+    if args.eval_episodes < 0:
+        raise UsageError(f"--eval-episodes must be >= 0, got {args.eval_episodes}")
+    batch_size = args.num_envs * args.num_steps
+    if args.total_timesteps < batch_size:
+        raise UsageError(f"--total-timesteps {args.total_timesteps} is less than one rollout ({batch_size} steps)")
+    for name in TUNABLE:
+        check_setting(name, getattr(args, name), batch_size, f"--{name.replace('_', '-')}")
+    if not (0 < args.gamma <= 1):
+        raise UsageError(f"--gamma must be in (0, 1], got {args.gamma}")
+    if not (0 <= args.gae_lambda <= 1):
+        raise UsageError(f"--gae-lambda must be in [0, 1], got {args.gae_lambda}")
+    if args.target_kl is not None and not args.target_kl > 0:
+        raise UsageError(f"--target-kl must be positive, got {args.target_kl}")
+    space = None
+    if args.ultho:
+        space = checked_search_space(args, batch_size)
+        if not (math.isfinite(args.ultho_c) and args.ultho_c >= 0):
+            raise UsageError(f"--ultho-c must be a finite number >= 0, got {args.ultho_c}")
+        if args.ultho_window < 1:
+            raise UsageError(f"--ultho-window must be >= 1, got {args.ultho_window}")
+    if checkpoint is None:
+        if os.sep in run_name(args) or run_name(args) in ("", ".", ".."):
+            raise UsageError(f"--run-name {args.run_name!r} is not a plain directory name")
+        run_dir = os.path.join(args.runs_dir, run_name(args))
+        if os.path.exists(run_dir):
+            raise UsageError(f"run directory {run_dir} already exists: pass --resume {run_dir} or another --run-name")
+    return space, checkpoint
+
+
+def check_env_id(env_id: str) -> None:
+    """The environment must be registered and have a Box action space and a flat Box observation. Its spaces
+    exist only on an instance, so it is constructed here but never reset: a pybullet environment connects to
+    its physics engine only at its first reset, so no simulation starts."""
+    try:
+        gym.spec(env_id)
+    except gym.error.Error:
+        raise UsageError(f"--env-id {env_id}: no such environment is registered") from None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            env = gym.make(env_id)
+    except Exception as err:  # noqa: BLE001  (a missing dependency, for example)
+        reason = (str(err).splitlines() or [""])[0]
+        raise UsageError(f"--env-id {env_id}: cannot be constructed ({err.__class__.__name__}: {reason})") from None
+    action_space, observation_space = env.action_space, env.observation_space
+    env.close()
+    if not isinstance(action_space, gym.spaces.Box):
+        raise UsageError(f"--env-id {env_id}: its action space {action_space} is not continuous (Box)")
+    if not (isinstance(observation_space, gym.spaces.Box) and len(observation_space.shape) == 1):
+        raise UsageError(f"--env-id {env_id}: its observation space {observation_space} is not a state vector")
+
+
+def run_name(args: Args) -> str:
+    if args.run_name is None:
+        args.run_name = f"{args.env_id}__{args.exp_name}__{args.seed}__{int(time.time())}"
+    return args.run_name
+
+
+def make_env(env_id: str) -> gym.Env:
+    """A fresh environment, reset once to a fixed seed (a warm-up, see ReplayableEnvs). pybullet's
+    BulletClient() joins a running shared-memory physics server when there is one, so that every environment
+    would share one world; during the first reset, where the client is created, it is made a private DIRECT
+    client instead, so the training and evaluation environments never interfere."""
+    env = gym.make(env_id)
+    direct_client = functools.partial(bullet_client.BulletClient, connection_mode=pybullet.DIRECT)
+    with silenced_c_output(), mock.patch.object(bullet_client, "BulletClient", direct_client):
+        env.reset(seed=0)
+    return env
+
+
+class ReplayableEnvs:
+    """num_envs environments stepped in turn, with gymnasium's SAME_STEP autoreset (a finished episode's next
+    observation is the new episode's first), whose exact state a checkpoint can hold although pybullet's
+    cannot be pickled: every episode begins with reset(seed=its own seed) and its actions are kept, so fresh
+    environments reach the same state by replaying them (at most one episode: 1000 steps on the locomotion
+    tasks). make_env's warm-up reset makes every later reset independent of the environment's history:
+    pybullet's locomotion tasks restore the physics snapshot of their first reset, and only the first episode
+    of a fresh environment differs (in its first reward)."""
+
+    def __init__(self, env_id: str, num_envs: int, seed_key: tuple[int, ...]):
+        self.envs = [make_env(env_id) for _ in range(num_envs)]
+        self.seed_key = seed_key
+        self.episodes = [0] * num_envs  # episodes begun per environment
+        self.actions: list[list[np.ndarray]] = [[] for _ in range(num_envs)]
+        self.single_observation_space = self.envs[0].observation_space
+        self.single_action_space = self.envs[0].action_space
+
+    def _begin_episode(self, k: int) -> np.ndarray:
+        seed = int(np.random.SeedSequence([*self.seed_key, k, self.episodes[k]]).generate_state(1)[0])
+        self.episodes[k] += 1
+        self.actions[k] = []
+        return self.envs[k].reset(seed=seed)[0]
+
+    def reset(self) -> np.ndarray:
+        return np.stack([self._begin_episode(k) for k in range(len(self.envs))])
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        observations, rewards = [], np.zeros(len(self.envs))
+        terminated, truncated = np.zeros(len(self.envs), dtype=bool), np.zeros(len(self.envs), dtype=bool)
+        for k, env in enumerate(self.envs):
+            self.actions[k].append(actions[k])
+            observation, rewards[k], terminated[k], truncated[k], _ = env.step(actions[k])
+            observations.append(self._begin_episode(k) if terminated[k] or truncated[k] else observation)
+        return np.stack(observations), rewards, terminated, truncated
+
+    def state_dict(self) -> dict:
+        return {"seed_key": self.seed_key, "episodes": list(self.episodes),
+                "actions": [np.array(a, dtype=np.float32).reshape(len(a), -1) for a in self.actions]}
+
+    @classmethod
+    def from_state_dict(cls, env_id: str, state: dict) -> "ReplayableEnvs":
+        envs = cls(env_id, len(state["episodes"]), tuple(state["seed_key"]))
+        for k, (episodes, actions) in enumerate(zip(state["episodes"], state["actions"])):
+            envs.episodes[k] = episodes - 1
+            envs._begin_episode(k)
+            for action in actions:
+                envs.envs[k].step(action)
+            envs.actions[k] = list(actions)
+        return envs
+
+    def close(self) -> None:
+        for env in self.envs:
+            env.close()
+
+
+class RunningMeanStd:
+    """Running mean and variance of a stream of batches (Chan et al.'s parallel update, as gymnasium's)."""
+
+    def __init__(self, shape: tuple[int, ...]):
+        self.mean = np.zeros(shape, dtype=np.float64)
+        self.var = np.ones(shape, dtype=np.float64)
+        self.count = 1e-4
+
+    def update(self, batch: np.ndarray) -> None:
+        # np.add.reduce rather than np.mean/np.var: the same sums at half the cost on one-row batches.
+        batch_count = batch.shape[0]
+        batch_mean = np.add.reduce(batch, axis=0) / batch_count
+        batch_var = np.add.reduce(np.square(batch - batch_mean), axis=0) / batch_count
+        delta = batch_mean - self.mean
+        total = self.count + batch_count
+        self.mean = self.mean + delta * batch_count / total
+        self.var = (self.var * self.count + batch_var * batch_count + np.square(delta) * self.count * batch_count / total) / total
+        self.count = total
+
+    def state_dict(self) -> dict:
+        return {"mean": self.mean.copy(), "var": self.var.copy(), "count": self.count}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.mean, self.var, self.count = state["mean"].copy(), state["var"].copy(), state["count"]
+
+
+def normalize_obs(obs: np.ndarray, obs_rms: RunningMeanStd) -> np.ndarray:
+    return np.clip((obs - obs_rms.mean) / np.sqrt(obs_rms.var + NORM_EPSILON), -OBS_CLIP, OBS_CLIP).astype(np.float32)
+
+
+def layer_init(layer: nn.Module, std: float = np.sqrt(2), bias_const: float = 0.0) -> nn.Module:
+    torch.nn.init.orthogonal_(layer.weight, std)
+    torch.nn.init.constant_(layer.bias, bias_const)
+    return layer
+
+
+class Agent(nn.Module):
+    def __init__(self, obs_size: int, action_size: int):
+        super().__init__()
+        self.critic = nn.Sequential(
+            layer_init(nn.Linear(obs_size, 64)), nn.Tanh(),
+            layer_init(nn.Linear(64, 64)), nn.Tanh(),
+            layer_init(nn.Linear(64, 1), std=1.0),
+        )
+        self.actor_mean = nn.Sequential(
+            layer_init(nn.Linear(obs_size, 64)), nn.Tanh(),
+            layer_init(nn.Linear(64, 64)), nn.Tanh(),
+            layer_init(nn.Linear(64, action_size), std=0.01),
+        )
+        self.actor_logstd = nn.Parameter(torch.zeros(action_size))
+
+    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Normalized observations (N, D) -> (action means (N, A), values (N,))."""
+        return mlp(self.actor_mean, obs), mlp(self.critic, obs).squeeze(-1)
+
+    def get_action_mean(self, obs: torch.Tensor) -> torch.Tensor:
+        return mlp(self.actor_mean, obs)
+
+    def get_value(self, obs: torch.Tensor) -> torch.Tensor:
+        return mlp(self.critic, obs).squeeze(-1)
+
+
+def mlp(layers: nn.Sequential, x: torch.Tensor) -> torch.Tensor:
+    """layers(x) for a stack of Linear and Tanh, without nn.Module's per-call dispatch (measured: that dispatch
+    triples the cost of the one-row forward of every rollout step)."""
+    for layer in layers:
+        x = F.linear(x, layer.weight, layer.bias) if isinstance(layer, nn.Linear) else torch.tanh(x)
+    return x
+
+
+HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
+
+
+def gaussian_log_prob(actions: torch.Tensor, mean: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
+    """log N(actions; mean, diag(exp(log_std))^2) summed over action dimensions, written out: with its backward
+    about 1.5x as fast as torch.distributions.Normal's log_prob and entropy on a minibatch of 64 (measured)."""
+    z = (actions - mean) * (-log_std).exp()
+    return -0.5 * z.square().sum(-1) - (log_std.sum() + HALF_LOG_2PI * log_std.numel())
+
+
+def gaussian_entropy(log_std: torch.Tensor) -> torch.Tensor:
+    """The policy's entropy; the same in every state, since the standard deviation does not depend on it."""
+    return (log_std + 0.5 + HALF_LOG_2PI).sum()
+
+
+def atomic_write_bytes(path: str, data: bytes) -> None:
+    tmp = f"{path}.tmp"
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def atomic_save_torch(path: str, obj: dict) -> None:
+    buffer = io.BytesIO()
+    torch.save(obj, buffer)
+    atomic_write_bytes(path, buffer.getvalue())
+
+
+def atomic_save_json(path: str, obj: dict) -> None:
+    atomic_write_bytes(path, (json.dumps(obj, indent=2, allow_nan=False) + "\n").encode())
+
+
+def episode_seed(*key: int) -> int:
+    """An environment seed drawn from the key (run seed, purpose, environment, episode): distinct streams for
+    training and evaluation, and no episode shared between runs with neighbouring seeds."""
+    return int(np.random.SeedSequence(list(key)).generate_state(1)[0])
+
+
+def evaluate(agent: Agent, args: Args, device: torch.device, obs_rms: RunningMeanStd) -> list[float]:
+    """Returns of --eval-episodes fresh episodes (seeds unused in training), one per environment, sampling
+    the policy as in training, with the observation normalization's statistics frozen as training left them."""
+    returns: list[float] = []
+    while len(returns) < args.eval_episodes:
+        n = min(args.eval_episodes - len(returns), 16)
+        envs = [make_env(args.env_id) for _ in range(n)]
+        low, high = envs[0].action_space.low, envs[0].action_space.high
+        raw_obs = np.stack([env.reset(seed=episode_seed(args.seed, 1, len(returns) + k))[0] for k, env in enumerate(envs)])
+        total, running = np.zeros(n), np.ones(n, dtype=bool)
+        while running.any():
+            with torch.no_grad():
+                mean = agent.get_action_mean(torch.from_numpy(normalize_obs(raw_obs, obs_rms)).to(device))
+                action = (mean + agent.actor_logstd.exp() * torch.randn_like(mean)).cpu().numpy()
+            for k in np.flatnonzero(running):
+                raw_obs[k], reward, terminated, truncated, _ = envs[k].step(np.clip(action[k], low, high))
+                total[k] += reward
+                running[k] = not (terminated or truncated)
+        for env in envs:
+            env.close()
+        returns += total.tolist()
+    return returns
+
+
+def main(args: Args) -> None:
+    space, checkpoint = validate(args)  # nothing is written or started before this returns
+
+    batch_size = args.num_envs * args.num_steps
+    num_iterations = args.total_timesteps // batch_size
+    # The run's settings before ULTHO changes any; a resumed run keeps its original ones.
+    config = checkpoint["config"] if checkpoint is not None else dataclasses.asdict(args)
+    run_dir = args.resume if checkpoint is not None else os.path.join(args.runs_dir, run_name(args))
+    checkpoint_path = os.path.join(run_dir, "checkpoint.pt")
+    quiet = args.quiet
+
+    random.seed(args.seed)
+    np.random.seed(args.seed)
+    torch.manual_seed(args.seed)
+    torch.backends.cudnn.deterministic = args.torch_deterministic
+    torch.set_num_threads(args.torch_threads)
+    device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
+    minibatch_rng = np.random.default_rng(args.seed)
+
+    bandit = ULTHO(space, c=args.ultho_c, window=args.ultho_window) if args.ultho else None
+    tuned = list(space) if space is not None else list(SEARCH_SPACE)
+
+    if checkpoint is None:
+        envs = ReplayableEnvs(args.env_id, args.num_envs, (args.seed, 0))
+    else:
+        envs = ReplayableEnvs.from_state_dict(args.env_id, checkpoint["envs"])
+    obs_size, action_size = envs.single_observation_space.shape[0], envs.single_action_space.shape[0]
+    action_low, action_high = envs.single_action_space.low, envs.single_action_space.high
+    obs_rms, return_rms = RunningMeanStd((obs_size,)), RunningMeanStd(())
+    discounted_return = np.zeros(args.num_envs)  # the running discounted return whose std scales the rewards
+    if checkpoint is None:
+        raw_obs = envs.reset()
+        obs_rms.update(raw_obs)
+        next_obs_np = normalize_obs(raw_obs, obs_rms)
+        next_done_np = np.zeros(args.num_envs, dtype=bool)
+    else:
+        next_obs_np, next_done_np = checkpoint["next_obs"], checkpoint["next_done"]
+    agent = Agent(obs_size, action_size).to(device)
+    optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5, fused=True)
+
+    start_iteration, global_step, elapsed_before = 1, 0, 0.0
+    ultho_seconds = 0.0  # wall time spent on ULTHO's own work, reported as its share of the run
+    episode_return = np.zeros(args.num_envs)
+    episode_length = np.zeros(args.num_envs, dtype=np.int64)
+    recent_returns: deque[float] = deque(maxlen=100)
+    recent_lengths: deque[int] = deque(maxlen=100)
+    if checkpoint is not None:
+        agent.load_state_dict(checkpoint["agent"])
+        optimizer.load_state_dict(checkpoint["optimizer"])
+        if bandit is not None:
+            bandit.load_state_dict(checkpoint["bandit"])
+        for name, value in checkpoint["settings"].items():
+            setattr(args, name, value)
+        # The optimizer's saved state carries the learning rate it had; re-apply the setting in force.
+        for group in optimizer.param_groups:
+            group["lr"] = args.learning_rate
+        obs_rms.load_state_dict(checkpoint["normalizer"]["obs"])
+        return_rms.load_state_dict(checkpoint["normalizer"]["return"])
+        discounted_return = checkpoint["normalizer"]["discounted_return"].copy()
+        start_iteration = checkpoint["iteration"] + 1
+        global_step = checkpoint["global_step"]
+        elapsed_before, ultho_seconds = checkpoint["elapsed"], checkpoint["ultho_seconds"]
+        episode_return, episode_length = checkpoint["episode_return"], checkpoint["episode_length"]
+        recent_returns.extend(checkpoint["recent_returns"])
+        recent_lengths.extend(checkpoint["recent_lengths"])
+        random.setstate(checkpoint["rng"]["python"])
+        np.random.set_state(checkpoint["rng"]["numpy"])
+        torch.set_rng_state(checkpoint["rng"]["torch"])
+        minibatch_rng.bit_generator.state = checkpoint["rng"]["minibatch"]
+
+    os.makedirs(run_dir, exist_ok=True)
+    # purge_step drops events a killed process logged after its last checkpoint.
+    writer = SummaryWriter(run_dir, purge_step=global_step + 1 if checkpoint is not None else None)
+    if checkpoint is None:
+        writer.add_text(
+            "hyperparameters",
+            "|param|value|\n|-|-|\n" + "\n".join(f"|{k}|{v}|" for k, v in config.items()),
+        )
+
+    def save_checkpoint(iteration: int) -> None:
+        atomic_save_torch(checkpoint_path, {
+            "script": SCRIPT, "format": CHECKPOINT_FORMAT, "config": config,
+            "settings": {name: getattr(args, name) for name in TUNABLE},
+            "iteration": iteration, "global_step": global_step, "elapsed": elapsed_before + time.time() - start_time,
+            "ultho_seconds": ultho_seconds,
+            "agent": agent.state_dict(), "optimizer": optimizer.state_dict(),
+            "bandit": bandit.state_dict() if bandit is not None else None,
+            "normalizer": {"obs": obs_rms.state_dict(), "return": return_rms.state_dict(),
+                           "discounted_return": discounted_return.copy()},
+            "envs": envs.state_dict(), "next_obs": next_obs_np, "next_done": next_done_np,
+            "episode_return": episode_return, "episode_length": episode_length,
+            "recent_returns": list(recent_returns), "recent_lengths": list(recent_lengths),
+            "rng": {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state(),
+                    "minibatch": minibatch_rng.bit_generator.state},
+        })
+
+    # Rollout storage in NumPy, where the environments and normalizers live; torch views it after the rollout.
+    obs = np.zeros((args.num_steps, args.num_envs, obs_size), dtype=np.float32)
+    actions = np.zeros((args.num_steps, args.num_envs, action_size), dtype=np.float32)
+    rewards = np.zeros((args.num_steps, args.num_envs), dtype=np.float32)
+    dones = np.zeros((args.num_steps, args.num_envs), dtype=np.float32)
+
+    progress = tqdm(total=args.total_timesteps, initial=global_step, unit="step", dynamic_ncols=True,
+                    disable=quiet or not sys.stderr.isatty())
+    report_every = max(1, num_iterations // 20)
+    start_time, start_step = time.time(), global_step
+    for iteration in range(start_iteration, num_iterations + 1):
+        # 1. Collect a rollout with the current policy. Only the actor's mean runs per step; log-probabilities
+        # and values are computed for the whole rollout at once afterwards (the policy does not change).
+        iteration_returns: list[float] = []
+        iteration_lengths: list[int] = []
+        noise = torch.randn((args.num_steps, args.num_envs, action_size), device=device)
+        with torch.no_grad():
+            action_std = agent.actor_logstd.exp()
+        for step in range(args.num_steps):
+            global_step += args.num_envs
+            obs[step] = next_obs_np
+            dones[step] = next_done_np
+            with torch.no_grad():
+                action = agent.get_action_mean(torch.from_numpy(next_obs_np).to(device)) + action_std * noise[step]
+            actions[step] = action.cpu().numpy()
+            raw_obs, reward, terminated, truncated = envs.step(np.clip(actions[step], action_low, action_high))
+            next_done_np = terminated | truncated
+            obs_rms.update(raw_obs)
+            next_obs_np = normalize_obs(raw_obs, obs_rms)
+            discounted_return = discounted_return * args.gamma * (1 - terminated) + reward
+            return_rms.update(discounted_return)
+            rewards[step] = np.clip(reward / np.sqrt(return_rms.var + NORM_EPSILON), -OBS_CLIP, OBS_CLIP)
+            episode_return += reward
+            episode_length += 1
+            if next_done_np.any():
+                finished = np.flatnonzero(next_done_np)
+                iteration_returns += episode_return[finished].tolist()
+                iteration_lengths += episode_length[finished].tolist()
+                episode_return[finished] = 0.0
+                episode_length[finished] = 0
+        recent_returns.extend(iteration_returns)
+        recent_lengths.extend(iteration_lengths)
+
+        # 2. Generalized advantage estimation (in NumPy: its 2048 tiny steps cost a quarter of torch's).
+        b_obs = torch.from_numpy(obs.reshape(batch_size, obs_size)).to(device)
+        b_actions = torch.from_numpy(actions.reshape(batch_size, action_size)).to(device)
+        with torch.no_grad():
+            b_means, b_values = agent(b_obs)
+            b_logprobs = gaussian_log_prob(b_actions, b_means, agent.actor_logstd)
+            next_value = agent.get_value(torch.from_numpy(next_obs_np).to(device)).cpu().numpy()
+        values = b_values.cpu().numpy().reshape(args.num_steps, args.num_envs)
+        advantages = np.zeros_like(rewards)
+        lastgaelam = np.zeros(args.num_envs, dtype=np.float32)
+        for t in reversed(range(args.num_steps)):
+            if t == args.num_steps - 1:
+                nextnonterminal, nextvalues = 1.0 - next_done_np, next_value
+            else:
+                nextnonterminal, nextvalues = 1.0 - dones[t + 1], values[t + 1]
+            delta = rewards[t] + args.gamma * nextvalues * nextnonterminal - values[t]
+            lastgaelam = delta + args.gamma * args.gae_lambda * nextnonterminal * lastgaelam
+            advantages[t] = lastgaelam
+        returns = advantages + values
+
+        # 3. ULTHO: credit the previous choice with what the updated policy collected, then choose anew.
+        credit = None
+        if bandit is not None:
+            tick = time.perf_counter()
+            if bandit.pending is not None and args.ultho_utility != "value-after":
+                credit = float((values if args.ultho_utility == "value" else returns).mean())
+                bandit.update(credit)
+            cluster, choice = bandit.select()
+            setattr(args, cluster, choice)
+            if cluster == "learning_rate":
+                for group in optimizer.param_groups:
+                    group["lr"] = choice
+            ultho_seconds += time.perf_counter() - tick
+
+        # 4. PPO update with the settings in force.
+        b_advantages = torch.from_numpy(advantages.reshape(-1)).to(device)
+        b_returns = torch.from_numpy(returns.reshape(-1)).to(device)
+        loss_sums = torch.zeros(6, device=device)  # policy, value, entropy, old kl, kl, clipfrac
+        num_minibatches = 0
+        for epoch in range(args.update_epochs):
+            permutation = torch.from_numpy(minibatch_rng.permutation(batch_size)).to(device)
+            # One gather per epoch; each minibatch is then a contiguous slice (cheaper than a gather each).
+            e_obs, e_actions, e_logprobs, e_advantages, e_returns, e_values = (
+                x[permutation] for x in (b_obs, b_actions, b_logprobs, b_advantages, b_returns, b_values))
+            for start in range(0, batch_size, args.minibatch_size):
+                mb = slice(start, start + args.minibatch_size)
+                newmean, newvalue = agent(e_obs[mb])
+                newlogprob = gaussian_log_prob(e_actions[mb], newmean, agent.actor_logstd)
+                entropy_loss = gaussian_entropy(agent.actor_logstd)
+                logratio = newlogprob - e_logprobs[mb]
+                ratio = logratio.exp()
+                with torch.no_grad():
+                    old_approx_kl = (-logratio).mean()
+                    approx_kl = ((ratio - 1) - logratio).mean()
+                    clipfrac = ((ratio - 1.0).abs() > args.clip_coef).float().mean()
+
+                mb_advantages = e_advantages[mb]
+                if args.norm_adv:
+                    mb_advantages = (mb_advantages - mb_advantages.mean()) / (mb_advantages.std() + 1e-8)
+                pg_loss1 = -mb_advantages * ratio
+                pg_loss2 = -mb_advantages * torch.clamp(ratio, 1 - args.clip_coef, 1 + args.clip_coef)
+                pg_loss = torch.max(pg_loss1, pg_loss2).mean()
+
+                if args.clip_vloss:
+                    v_loss_unclipped = (newvalue - e_returns[mb]) ** 2
+                    v_clipped = e_values[mb] + torch.clamp(newvalue - e_values[mb], -args.clip_coef, args.clip_coef)
+                    v_loss = 0.5 * torch.max(v_loss_unclipped, (v_clipped - e_returns[mb]) ** 2).mean()
+                else:
+                    v_loss = 0.5 * ((newvalue - e_returns[mb]) ** 2).mean()
+                loss = pg_loss - args.ent_coef * entropy_loss + v_loss * args.vf_coef
+
+                optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+                optimizer.step()
+                loss_sums += torch.stack([pg_loss, v_loss, entropy_loss, old_approx_kl, approx_kl, clipfrac]).detach()
+                num_minibatches += 1
+            if args.target_kl is not None and approx_kl.item() > args.target_kl:
+                break
+        pg_mean, v_mean, ent_mean, old_kl_mean, kl_mean, clipfrac_mean = (loss_sums / num_minibatches).tolist()
+        if not all(map(math.isfinite, (pg_mean, v_mean, ent_mean))):
+            progress.close()
+            writer.close()
+            last = f"the last good checkpoint is {checkpoint_path}" if os.path.exists(checkpoint_path) else "no checkpoint was written"
+            print(f"{SCRIPT}: error: non-finite loss at iteration {iteration} (step {global_step}) with "
+                  f"{', '.join(f'{n}={format_value(getattr(args, n))}' for n in tuned)}; stopped, {last}", file=sys.stderr)
+            sys.exit(1)
+
+        if bandit is not None and args.ultho_utility == "value-after":
+            tick = time.perf_counter()
+            with torch.no_grad():
+                credit = agent.get_value(b_obs).mean().item()
+            bandit.update(credit)
+            ultho_seconds += time.perf_counter() - tick
+
+        # 5. Log.
+        var_y = b_returns.var()
+        explained_var = (1 - (b_returns - b_values).var() / var_y).item() if var_y > 0 else float("nan")
+        elapsed = time.time() - start_time
+        sps = int((global_step - start_step) / elapsed) if elapsed > 0 else 0
+        if iteration_returns:
+            writer.add_scalar("charts/episodic_return", float(np.mean(iteration_returns)), global_step)
+            writer.add_scalar("charts/episodic_length", float(np.mean(iteration_lengths)), global_step)
+        writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"], global_step)
+        writer.add_scalar("charts/SPS", sps, global_step)
+        writer.add_scalar("losses/value_loss", v_mean, global_step)
+        writer.add_scalar("losses/policy_loss", pg_mean, global_step)
+        writer.add_scalar("losses/entropy", ent_mean, global_step)
+        writer.add_scalar("losses/old_approx_kl", old_kl_mean, global_step)
+        writer.add_scalar("losses/approx_kl", kl_mean, global_step)
+        writer.add_scalar("losses/clipfrac", clipfrac_mean, global_step)
+        writer.add_scalar("losses/explained_variance", explained_var, global_step)
+        for name in tuned:
+            writer.add_scalar(f"hparams/{name}", getattr(args, name), global_step)
+        if bandit is not None:
+            tick = time.perf_counter()
+            for tag, scalar in bandit.scalars().items():
+                writer.add_scalar(tag, scalar, global_step)
+            if credit is not None:
+                writer.add_scalar("ultho/credit", credit, global_step)
+            ultho_seconds += time.perf_counter() - tick
+
+        recent = f"{np.mean(recent_returns):.3g}" if recent_returns else "-"
+        choice_text = f"{cluster}={format_value(choice)}" if bandit is not None else "fixed"
+        progress.update(global_step - progress.n)
+        progress.set_postfix_str(f"SPS {sps} | return {recent} | {choice_text}", refresh=False)
+        if progress.disable and not quiet and (iteration % report_every == 0 or iteration == num_iterations):
+            print(f"[{SCRIPT}] step {global_step}/{args.total_timesteps} ({100 * iteration // num_iterations}%) | "
+                  f"SPS {sps} | return {recent} | {choice_text}", flush=True)
+
+        if iteration % args.checkpoint_every == 0 or iteration == num_iterations:
+            save_checkpoint(iteration)
+    progress.close()
+    envs.close()
+
+    wall_time = elapsed_before + time.time() - start_time
+    eval_returns = evaluate(agent, args, device, obs_rms) if args.eval_episodes > 0 else []
+    if eval_returns:
+        writer.add_scalar("eval/return", float(np.mean(eval_returns)), global_step)
+    writer.close()
+    summary = {
+        "script": SCRIPT,
+        "env_id": args.env_id,
+        "run_name": args.run_name,
+        "run_dir": run_dir,
+        "seed": args.seed,
+        "settings": config,
+        "ultho": args.ultho,
+        "global_step": global_step,
+        "iterations": num_iterations,
+        "wall_time_s": wall_time,
+        "sps": global_step / wall_time if wall_time > 0 else None,
+        "ultho_seconds": ultho_seconds,
+        "ultho_share": ultho_seconds / wall_time if wall_time > 0 else None,
+        "device": str(device),
+        "final_score": float(np.mean(recent_returns)) if recent_returns else None,
+        "final_score_episodes": len(recent_returns),
+        "final_episode_length": float(np.mean(recent_lengths)) if recent_lengths else None,
+        "eval": {
+            "episodes": len(eval_returns),
+            "mean_return": float(np.mean(eval_returns)) if eval_returns else None,
+            "std_return": float(np.std(eval_returns)) if eval_returns else None,
+            "returns": eval_returns,
+        },
+        "settings_in_force": {name: getattr(args, name) for name in tuned},
+        "bandit": None if bandit is None else {
+            "search_space": bandit.search_space,
+            "c": bandit.c,
+            "window": bandit.window,
+            "utility": args.ultho_utility,
+            "selections": bandit.selections(),
+            "value_selections": bandit.value_selections(),
+            "coi": bandit.cluster_of_interest(),
+            "noi": bandit.neglected_cluster_of_interest(),
+        },
+    }
+    atomic_save_json(os.path.join(run_dir, "summary.json"), summary)
+    if not quiet:
+        score = summary["final_score"]
+        print(f"[{SCRIPT}] done: {global_step} steps in {wall_time:.0f}s, final score "
+              f"{'-' if score is None else f'{score:.3f}'}, summary in {run_dir}/summary.json", flush=True)
+
+
+if __name__ == "__main__":
+    try:
+        main(parse_args())
+    except UsageError as err:
+        print(f"{SCRIPT}: error: {err}", file=sys.stderr)
+        sys.exit(2)
