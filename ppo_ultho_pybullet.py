@@ -574,6 +574,8 @@ def main(args: Args) -> None:
         random.setstate(checkpoint["rng"]["python"])
         np.random.set_state(checkpoint["rng"]["numpy"])
         torch.set_rng_state(checkpoint["rng"]["torch"])
+        if device.type == "cuda" and checkpoint["rng"]["cuda"] is not None:
+            torch.cuda.set_rng_state_all(checkpoint["rng"]["cuda"])  # actions are sampled on the device
         minibatch_rng.bit_generator.state = checkpoint["rng"]["minibatch"]
 
     os.makedirs(run_dir, exist_ok=True)
@@ -599,6 +601,7 @@ def main(args: Args) -> None:
             "episode_return": episode_return, "episode_length": episode_length,
             "recent_returns": list(recent_returns), "recent_lengths": list(recent_lengths),
             "rng": {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state(),
+                    "cuda": torch.cuda.get_rng_state_all() if device.type == "cuda" else None,
                     "minibatch": minibatch_rng.bit_generator.state},
         })
 
