@@ -39,19 +39,20 @@ class Preset:
     total_timesteps: int
     """the paper's budget per run (ULTHO_SPEC.md, "environment steps")"""
     measured_sps: float
-    """steps per second on the 2-core CI CPU, for the compute estimate"""
+    """single-run steps per second, ULTHO on, as measured in the README (CPU for MiniGrid and PyBullet, one
+    H100 for ALE and Procgen), for the compute estimate"""
 
 
 PROCGEN_GAMES = ("bigfish", "bossfight", "caveflyer", "chaser", "climber", "coinrun", "dodgeball", "fruitbot",
                  "heist", "jumper", "leaper", "maze", "miner", "ninja", "plunder", "starpilot")
 PRESETS = {
-    "procgen": Preset("ppo_ultho_procgen.py", PROCGEN_GAMES, 25_000_000, 170),
+    "procgen": Preset("ppo_ultho_procgen.py", PROCGEN_GAMES, 25_000_000, 6_579),
     "atari": Preset("ppo_ultho_atari.py", ("BattleZone", "DoubleDunk", "NameThisGame", "Phoenix", "Qbert"),
-                    10_000_000, 420),
+                    10_000_000, 1_827),
     "minigrid": Preset("ppo_ultho_minigrid.py", ("MiniGrid-DoorKey-6x6-v0", "MiniGrid-LavaGapS7-v0",
-                                                 "MiniGrid-Empty-16x16-v0"), 500_000, 6_500),
+                                                 "MiniGrid-Empty-16x16-v0"), 500_000, 2_331),
     "pybullet": Preset("ppo_ultho_pybullet.py", ("AntBulletEnv-v0", "HalfCheetahBulletEnv-v0", "HopperBulletEnv-v0",
-                                                 "Walker2DBulletEnv-v0"), 2_000_000, 1_000),
+                                                 "Walker2DBulletEnv-v0"), 2_000_000, 621),
 }
 PAPER_C = (1.0, 5.0)
 PAPER_WINDOWS = (10, 50, 100)
