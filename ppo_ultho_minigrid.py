@@ -20,6 +20,7 @@ import contextlib
 import dataclasses
 import functools
 import io
+import itertools
 import json
 import math
 import os
@@ -38,6 +39,9 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 import tyro
+from minigrid.core.constants import OBJECT_TO_IDX
+from minigrid.core.world_object import Wall
+from minigrid.minigrid_env import MiniGridEnv
 from minigrid.wrappers import ImgObsWrapper
 from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
@@ -70,6 +74,9 @@ class Args:
     """if toggled, use CUDA when it is available"""
     torch_threads: int = 1
     """CPU threads for torch; one is fastest for this small network (measured: 2 threads cost a third of SPS)"""
+    fast_obs: bool = True
+    """build the 7x7x3 view with fast_gen_obs, an exact re-implementation of MiniGrid's gen_obs (environment
+    steps about 3x faster; a test checks equality); --no-fast-obs uses MiniGrid's own"""
     run_name: Optional[str] = None
     """name of the run directory under --runs-dir (default: {env_id}__{exp_name}__{seed}__{unix time})"""
     runs_dir: str = "runs"
@@ -259,6 +266,70 @@ def make_envs(env_id: str, num_envs: int) -> gym.vector.SyncVectorEnv:
     )
 
 
+MINIGRID_GEN_OBS = MiniGridEnv.gen_obs
+OUTSIDE_GRID = Wall()  # what Grid.slice returns beyond the grid's edge; only read, so one instance serves all
+EMPTY_CODE, UNSEEN_CODE = (OBJECT_TO_IDX["empty"], 0, 0), (OBJECT_TO_IDX["unseen"], 0, 0)
+
+
+@functools.cache
+def view_layout(view_size: int) -> tuple[tuple[tuple[tuple[int, int], ...], ...], tuple[int, ...]]:
+    """Where MiniGrid's egocentric view looks: for each agent direction, the (dx, dy) offset from the agent of
+    every view cell, in the row-major order of Grid.grid; and the column-major order Grid.encode writes.
+
+    Derived by replaying get_view_exts, Grid.slice and the (direction + 1) calls of Grid.rotate_left on the
+    offsets themselves, so the layout is MiniGrid's by construction."""
+    half = view_size // 2
+    tops = ((0, -half), (-half, 0), (1 - view_size, -half), (-half, 1 - view_size))
+    layouts = []
+    for direction, (top_x, top_y) in enumerate(tops):
+        view = {(i, j): (top_x + i, top_y + j) for i in range(view_size) for j in range(view_size)}
+        for _ in range(direction + 1):
+            view = {(j, view_size - 1 - i): offset for (i, j), offset in view.items()}  # Grid.rotate_left
+        layouts.append(tuple(view[i, j] for j in range(view_size) for i in range(view_size)))
+    column_major = tuple(j * view_size + i for i in range(view_size) for j in range(view_size))
+    return tuple(layouts), column_major
+
+
+def fast_gen_obs(self: MiniGridEnv) -> dict:
+    """MiniGridEnv.gen_obs, the same observation computed about 3.5x faster (on the 2-core CPU: 40 vs 148 µs).
+
+    MiniGrid builds the view as Grid objects: a slice that creates a Wall for every cell beyond the edge, one to
+    four rotations that copy all 49 cells through asserting get/set calls, then the occlusion pass and the
+    encoding. At these settings that is about 60% of the whole training step. Here the view is a list read
+    straight from the grid through a precomputed layout, the occlusion pass (Grid.process_vis, same order and
+    rules, the object's own see_behind()) runs on that list, and the codes are each object's own encode().
+    tests/test_minigrid.py checks equality with MiniGrid's gen_obs over thousands of states of many
+    environments, doors, keys and carried objects included."""
+    size = self.agent_view_size
+    layouts, column_major = view_layout(size)
+    agent_x, agent_y = self.agent_pos
+    width, height, cells = self.grid.width, self.grid.height, self.grid.grid
+    view = [cells[(agent_y + dy) * width + agent_x + dx] if 0 <= agent_x + dx < width and 0 <= agent_y + dy < height
+            else OUTSIDE_GRID for dx, dy in layouts[self.agent_dir]]
+    agent = (size - 1) * size + size // 2  # the agent's cell: bottom row, middle
+    if self.see_through_walls:
+        visible = [True] * (size * size)
+    else:  # Grid.process_vis: light spreads row by row away from the agent, rightwards then leftwards
+        visible = [False] * (size * size)
+        visible[agent] = True
+        for j in range(size - 1, -1, -1):
+            row = j * size
+            for k in range(row, row + size - 1):
+                if visible[k] and not (view[k] and not view[k].see_behind()):
+                    visible[k + 1] = True
+                    if j > 0:
+                        visible[k + 1 - size] = visible[k - size] = True
+            for k in range(row + size - 1, row, -1):
+                if visible[k] and not (view[k] and not view[k].see_behind()):
+                    visible[k - 1] = True
+                    if j > 0:
+                        visible[k - 1 - size] = visible[k - size] = True
+    view[agent] = self.carrying if self.carrying else None  # the agent sees what it carries
+    codes = [(EMPTY_CODE if view[k] is None else view[k].encode()) if visible[k] else UNSEEN_CODE for k in column_major]
+    image = np.frombuffer(bytearray(itertools.chain.from_iterable(codes)), dtype=np.uint8).reshape(size, size, 3)
+    return {"image": image, "direction": self.agent_dir, "mission": self.mission}
+
+
 def layer_init(layer: nn.Module, std: float = np.sqrt(2), bias_const: float = 0.0) -> nn.Module:
     torch.nn.init.orthogonal_(layer.weight, std)
     torch.nn.init.constant_(layer.bias, bias_const)
@@ -345,6 +416,7 @@ def main(args: Args) -> None:
     checkpoint_path = os.path.join(run_dir, "checkpoint.pt")
     quiet = args.quiet
 
+    MiniGridEnv.gen_obs = fast_gen_obs if args.fast_obs else MINIGRID_GEN_OBS  # identical observations
     random.seed(args.seed)
     np.random.seed(args.seed)
     torch.manual_seed(args.seed)

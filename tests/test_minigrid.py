@@ -3,6 +3,8 @@
 import math
 import os
 
+import gymnasium as gym
+import numpy as np
 import pytest
 import torch
 
@@ -195,3 +197,47 @@ def test_other_minigrid_environments_run(tmp_path, env_id):
            "--eval-episodes", "1", "--quiet", "--runs-dir", str(tmp_path), "--run-name", "other")
     s = summary(str(tmp_path / "other"))
     assert s["env_id"] == env_id and s["global_step"] == 512 and s["eval"]["episodes"] == 1
+
+
+# Many layouts and objects: doors (open, closed, locked), keys, balls and boxes to carry, lava, moving
+# obstacles, rooms; occlusion on (DoorKey, KeyCorridor, ...) and off (Empty, Fetch, Dynamic-Obstacles).
+EQUIVALENCE_ENVS = ["MiniGrid-DoorKey-6x6-v0", "MiniGrid-LavaGapS7-v0", "MiniGrid-Empty-16x16-v0",
+                    "MiniGrid-KeyCorridorS3R1-v0", "MiniGrid-MultiRoom-N2-S4-v0", "MiniGrid-Dynamic-Obstacles-6x6-v0",
+                    "MiniGrid-Fetch-5x5-N2-v0", "MiniGrid-ObstructedMaze-1Dlhb-v0", "MiniGrid-BlockedUnlockPickup-v0",
+                    "MiniGrid-MemoryS7-v0"]
+
+
+@pytest.mark.parametrize("env_id", EQUIVALENCE_ENVS)
+def test_fast_gen_obs_equals_minigrids_own(env_id):
+    from ppo_ultho_minigrid import MINIGRID_GEN_OBS, fast_gen_obs
+    env = gym.make(env_id)
+    env.reset(seed=0)
+    grid_env = env.unwrapped
+    rng = np.random.default_rng(0)
+    directions, carrying = set(), 0
+    for step in range(1500):
+        expected, fast = MINIGRID_GEN_OBS(grid_env), fast_gen_obs(grid_env)
+        assert fast["image"].dtype == np.uint8 and fast["image"].shape == expected["image"].shape
+        assert np.array_equal(fast["image"], expected["image"]), (env_id, step)
+        assert (fast["direction"], fast["mission"]) == (expected["direction"], expected["mission"])
+        directions.add(grid_env.agent_dir)
+        carrying += grid_env.carrying is not None
+        # Random actions, with "pick up" and "toggle" (doors) twice as likely, to reach more object states.
+        action = rng.choice([0, 1, 2, 3, 3, 4, 5, 5, 6])
+        _, _, terminated, truncated, _ = env.step(action)
+        if terminated or truncated:
+            env.reset(seed=int(rng.integers(1 << 30)))
+    assert directions == {0, 1, 2, 3}
+    if env_id in ("MiniGrid-DoorKey-6x6-v0", "MiniGrid-KeyCorridorS3R1-v0", "MiniGrid-BlockedUnlockPickup-v0"):
+        assert carrying > 0, "the walk never picked anything up: the carried-object case went untested"
+
+
+def test_fast_obs_run_equals_minigrid_obs_run(tmp_path):
+    for flag, name in (("--fast-obs", "fast"), ("--no-fast-obs", "minigrid")):
+        run_ok(SCRIPT, *TWO_ITERATIONS, flag, "--quiet", "--runs-dir", str(tmp_path), "--run-name", name)
+    fast, slow = summary(str(tmp_path / "fast")), summary(str(tmp_path / "minigrid"))
+    assert fast["settings"]["fast_obs"] is True and slow["settings"]["fast_obs"] is False
+    for key in ("global_step", "bandit", "final_score", "eval"):
+        assert fast[key] == slow[key], key
+    a, b = (torch.load(tmp_path / name / "checkpoint.pt", weights_only=False)["agent"] for name in ("fast", "minigrid"))
+    assert all(torch.equal(a[k], b[k]) for k in a)
