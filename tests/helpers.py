@@ -61,3 +61,33 @@ def scalars(run_dir: str) -> dict[str, list[tuple[int, float]]]:
 
 def files_under(path: str) -> list[str]:
     return [os.path.join(d, f) for d, _, files in os.walk(path) for f in files] if os.path.exists(path) else []
+
+
+def run_bad_inputs(script: str, arg_lists: list[list[str]], base) -> list[tuple[str, subprocess.CompletedProcess]]:
+    """Every bad input at once, each with its own empty runs directory: [(runs directory, result)]."""
+    runs = [os.path.join(str(base), str(k)) for k in range(len(arg_lists))]
+    return list(zip(runs, run_concurrently(script, [["--runs-dir", r, *args] for r, args in zip(runs, arg_lists)])))
+
+
+def assert_refused(script: str, runs_dir: str, result: subprocess.CompletedProcess, named: str) -> None:
+    """The bad-input convention: exit status 2, one line `<script>: error: ...` naming the bad value (no import
+    notices or warnings around it), nothing on stdout, nothing written."""
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and named in lines[0], result.stderr
+    assert lines[0].startswith(f"{script.removesuffix('.py')}: error: "), lines[0]
+    assert result.stdout == ""
+    assert files_under(runs_dir) == []
+
+
+def assert_existing_run_and_foreign_checkpoint_refused(script: str, tmp_path) -> None:
+    """An existing run directory is never reused, and a checkpoint that is not the script's is refused by name."""
+    (tmp_path / "taken").mkdir()
+    result = run(script, "--runs-dir", str(tmp_path), "--run-name", "taken")
+    assert result.returncode == 2 and "already exists" in result.stderr
+    (tmp_path / "junk").mkdir()
+    (tmp_path / "junk" / "checkpoint.pt").write_bytes(b"not a checkpoint")
+    result = run(script, "--resume", str(tmp_path / "junk"))
+    assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1
+    assert "unreadable" in result.stderr
+    assert sorted(os.listdir(tmp_path)) == ["junk", "taken"] and os.listdir(tmp_path / "taken") == []

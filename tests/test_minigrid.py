@@ -8,7 +8,10 @@ import numpy as np
 import pytest
 import torch
 
-from helpers import files_under, kill_after_first_checkpoint, run, run_concurrently, run_ok, scalars, summary
+from helpers import (
+    assert_existing_run_and_foreign_checkpoint_refused, assert_refused, kill_after_first_checkpoint, run,
+    run_bad_inputs, run_ok, scalars, summary,
+)
 from ultho_bandit import ULTHO
 
 SCRIPT = "ppo_ultho_minigrid.py"
@@ -128,33 +131,16 @@ BAD_INPUTS = [
 
 @pytest.fixture(scope="module")
 def bad_input_results(tmp_path_factory):
-    """Every bad input, each with its own empty runs directory, run at once."""
-    base = tmp_path_factory.mktemp("bad")
-    runs = [base / str(k) for k in range(len(BAD_INPUTS))]
-    return list(zip(runs, run_concurrently(SCRIPT, [["--runs-dir", str(r), *a] for r, (a, _) in zip(runs, BAD_INPUTS)])))
+    return run_bad_inputs(SCRIPT, [args for args, _ in BAD_INPUTS], tmp_path_factory.mktemp("bad"))
 
 
 @pytest.mark.parametrize("case", range(len(BAD_INPUTS)), ids=[" ".join(a) for a, _ in BAD_INPUTS])
 def test_bad_input_exits_2_with_one_line_and_writes_nothing(bad_input_results, case):
-    runs, result = bad_input_results[case]
-    named = BAD_INPUTS[case][1]
-    assert result.returncode == 2, result.stderr
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and named in lines[0], result.stderr
-    assert result.stdout == ""
-    assert files_under(str(runs)) == []
+    assert_refused(SCRIPT, *bad_input_results[case], BAD_INPUTS[case][1])
 
 
 def test_existing_run_directory_and_foreign_checkpoint_are_refused(tmp_path):
-    (tmp_path / "taken").mkdir()
-    result = run(SCRIPT, "--runs-dir", str(tmp_path), "--run-name", "taken")
-    assert result.returncode == 2 and "already exists" in result.stderr
-    (tmp_path / "junk").mkdir()
-    (tmp_path / "junk" / "checkpoint.pt").write_bytes(b"not a checkpoint")
-    result = run(SCRIPT, "--resume", str(tmp_path / "junk"))
-    assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1
-    assert "unreadable" in result.stderr
-    assert sorted(os.listdir(tmp_path)) == ["junk", "taken"] and os.listdir(tmp_path / "taken") == []
+    assert_existing_run_and_foreign_checkpoint_refused(SCRIPT, tmp_path)
 
 
 def test_help_lists_every_flag():
