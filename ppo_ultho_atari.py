@@ -84,8 +84,9 @@ class Args:
     """if toggled, `torch.backends.cudnn.deterministic=True`"""
     cuda: bool = True
     """if toggled, use CUDA when it is available"""
-    torch_threads: int = 1
-    """CPU threads for torch (measured on 2 cores: one is fastest, the environment's threads take the other)"""
+    torch_threads: int = 0
+    """CPU threads for torch (0: one per core, torch's own default). On an idle 2-core machine two threads
+    make the CNN's update about 1.7x faster than one; set 1 when other jobs share the cores"""
     run_name: Optional[str] = None
     """name of the run directory under --runs-dir (default: {env_id}__{exp_name}__{seed}__{unix time})"""
     runs_dir: str = "runs"
@@ -230,9 +231,11 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
     if game_rom(args.env_id) is None:
         raise UsageError(f"--env-id {args.env_id}: no such ALE game (a name like BattleZone, a ROM id like "
                          f"battle_zone, or a Gymnasium id like ALE/BattleZone-v5)")
-    for name in ("num_envs", "num_steps", "total_timesteps", "update_epochs", "checkpoint_every", "torch_threads"):
+    for name in ("num_envs", "num_steps", "total_timesteps", "update_epochs", "checkpoint_every"):
         if getattr(args, name) <= 0:
             raise UsageError(f"--{name.replace('_', '-')} must be positive, got {getattr(args, name)}")
+    if args.torch_threads < 0:
+        raise UsageError(f"--torch-threads must be >= 0 (0: one per core), got {args.torch_threads}")
     for name in ("eval_episodes", "noop_max", "env_threads"):
         if getattr(args, name) < 0:
             raise UsageError(f"--{name.replace('_', '-')} must be >= 0, got {getattr(args, name)}")
@@ -448,7 +451,8 @@ def main(args: Args) -> None:
     np.random.seed(args.seed)
     torch.manual_seed(args.seed)
     torch.backends.cudnn.deterministic = args.torch_deterministic
-    torch.set_num_threads(args.torch_threads)
+    if args.torch_threads > 0:
+        torch.set_num_threads(args.torch_threads)
     device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
     minibatch_rng = np.random.default_rng(args.seed)
 

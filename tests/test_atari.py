@@ -161,6 +161,7 @@ BAD_INPUTS = [
     (["--env-id", "NoSuchGame"], "NoSuchGame"),
     (["--env-id", "MiniGrid-DoorKey-6x6-v0"], "MiniGrid-DoorKey-6x6-v0"),
     (["--num-envs", "0"], "--num-envs must be positive, got 0"),
+    (["--torch-threads", "-1"], "--torch-threads must be >= 0 (0: one per core), got -1"),
     (["--num-steps", "-3"], "--num-steps must be positive, got -3"),
     (["--num-steps", "abc"], "abc"),
     (["--minibatch-size", "300"], "300 does not divide"),

@@ -132,6 +132,7 @@ BAD_INPUTS = [
     (["--env-id", "pong"], "pong"),
     (["--env-id", "starpilot-v0"], "starpilot-v0"),
     (["--num-envs", "0"], "--num-envs must be positive, got 0"),
+    (["--torch-threads", "-1"], "--torch-threads must be >= 0 (0: one per core), got -1"),
     (["--num-steps", "abc"], "abc"),
     (["--num-levels", "-1"], "--num-levels must be >= 0, got -1"),
     (["--start-level", "-5"], "--start-level must be >= 0, got -5"),
