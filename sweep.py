@@ -50,9 +50,9 @@ PRESETS = {
     "atari": Preset("ppo_ultho_atari.py", ("BattleZone", "DoubleDunk", "NameThisGame", "Phoenix", "Qbert"),
                     10_000_000, 1_827),
     "minigrid": Preset("ppo_ultho_minigrid.py", ("MiniGrid-DoorKey-6x6-v0", "MiniGrid-LavaGapS7-v0",
-                                                 "MiniGrid-Empty-16x16-v0"), 500_000, 2_331),
+                                                 "MiniGrid-Empty-16x16-v0"), 500_000, 4_172),
     "pybullet": Preset("ppo_ultho_pybullet.py", ("AntBulletEnv-v0", "HalfCheetahBulletEnv-v0", "HopperBulletEnv-v0",
-                                                 "Walker2DBulletEnv-v0"), 2_000_000, 621),
+                                                 "Walker2DBulletEnv-v0"), 2_000_000, 682),
 }
 PAPER_C = (1.0, 5.0)
 PAPER_WINDOWS = (10, 50, 100)
