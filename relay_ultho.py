@@ -316,16 +316,7 @@ def parse_split_args(parser: argparse.ArgumentParser, argv: list[str]) -> tuple[
         if exit_.code in (0, None):
             raise
         lines = err.getvalue().strip().splitlines()
-        message = lines[-1].split("error: ", 1)[-1] if lines else "invalid arguments"
-        if message.startswith("the following arguments are required"):
-            # argparse reports a missing positional before an unknown option; the unknown option (a typo
-            # that swallowed nothing) is the likelier mistake, so name it instead.
-            known = [option for action in parser._actions for option in action.option_strings]
-            unknown = [token for token in argv[:split] if token.startswith("--")
-                       and not any(option.startswith(token.split("=", 1)[0]) for option in known)]
-            if unknown:
-                message = f"unrecognized arguments: {' '.join(unknown)}"
-        raise UsageError(message) from None
+        raise UsageError(lines[-1].split("error: ", 1)[-1] if lines else "invalid arguments") from None
 
 
 def main(argv: list[str]) -> int:
