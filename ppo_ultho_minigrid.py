@@ -73,10 +73,11 @@ class Args:
     cuda: bool = True
     """if toggled, use CUDA when it is available"""
     torch_threads: int = 1
-    """CPU threads for torch; one is fastest for this small network (measured: 2 threads cost a third of SPS)"""
+    """CPU threads for torch; one suffices for this small network (on an idle 2-core machine a second changed
+    SPS within run-to-run noise; on shared cores it cost a third)"""
     fast_obs: bool = True
     """build the 7x7x3 view with fast_gen_obs, an exact re-implementation of MiniGrid's gen_obs (environment
-    steps about 3x faster; a test checks equality); --no-fast-obs uses MiniGrid's own"""
+    steps about 2.4x faster on a 2-core CPU; a test checks equality); --no-fast-obs uses MiniGrid's own"""
     run_name: Optional[str] = None
     """name of the run directory under --runs-dir (default: {env_id}__{exp_name}__{seed}__{unix time})"""
     runs_dir: str = "runs"
@@ -291,7 +292,7 @@ def view_layout(view_size: int) -> tuple[tuple[tuple[tuple[int, int], ...], ...]
 
 
 def fast_gen_obs(self: MiniGridEnv) -> dict:
-    """MiniGridEnv.gen_obs, the same observation computed about 3.5x faster (on the 2-core CPU: 40 vs 148 µs).
+    """MiniGridEnv.gen_obs, the same observation computed about 3.7x faster (on a 2-core CPU: 40 vs 148 µs).
 
     MiniGrid builds the view as Grid objects: a slice that creates a Wall for every cell beyond the edge, one to
     four rotations that copy all 49 cells through asserting get/set calls, then the occlusion pass and the
