@@ -43,6 +43,7 @@ import tyro
 from ale_py import roms
 from ale_py.registration import rom_id_to_name
 from ale_py.vector_env import AtariVectorEnv
+from tensorboard.compat.proto.summary_pb2 import Summary
 from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
@@ -712,10 +713,12 @@ def main(args: Args) -> None:
             writer.add_scalar(f"hparams/{name}", getattr(args, name), global_step)
         if bandit is not None:
             tick = time.perf_counter()
-            for tag, scalar in bandit.scalars().items():
-                writer.add_scalar(tag, scalar, global_step)
+            bandit_scalars = bandit.scalars()
             if credit is not None:
-                writer.add_scalar("ultho/credit", credit, global_step)
+                bandit_scalars["ultho/credit"] = credit
+            # One event holding them all: add_scalar costs about 0.14 ms a tag, over 10 ms an iteration here.
+            writer.file_writer.add_summary(Summary(value=[
+                Summary.Value(tag=tag, simple_value=float(x)) for tag, x in bandit_scalars.items()]), global_step)
             ultho_seconds += time.perf_counter() - tick
 
         recent = f"{np.mean(recent_returns):.3g}" if recent_returns else "-"

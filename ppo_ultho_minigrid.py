@@ -43,6 +43,7 @@ from minigrid.core.constants import OBJECT_TO_IDX
 from minigrid.core.world_object import Wall
 from minigrid.minigrid_env import MiniGridEnv
 from minigrid.wrappers import ImgObsWrapper
+from tensorboard.compat.proto.summary_pb2 import Summary
 from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
@@ -647,10 +648,12 @@ def main(args: Args) -> None:
             writer.add_scalar(f"hparams/{name}", getattr(args, name), global_step)
         if bandit is not None:
             tick = time.perf_counter()
-            for tag, scalar in bandit.scalars().items():
-                writer.add_scalar(tag, scalar, global_step)
+            bandit_scalars = bandit.scalars()
             if credit is not None:
-                writer.add_scalar("ultho/credit", credit, global_step)
+                bandit_scalars["ultho/credit"] = credit
+            # One event holding them all: add_scalar costs about 0.14 ms a tag, over 10 ms an iteration here.
+            writer.file_writer.add_summary(Summary(value=[
+                Summary.Value(tag=tag, simple_value=float(x)) for tag, x in bandit_scalars.items()]), global_step)
             ultho_seconds += time.perf_counter() - tick
 
         recent = f"{np.mean(recent_returns):.3g}" if recent_returns else "-"

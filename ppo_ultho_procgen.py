@@ -36,6 +36,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 import tyro
+from tensorboard.compat.proto.summary_pb2 import Summary
 from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
@@ -722,10 +723,12 @@ def main(args: Args) -> None:
             writer.add_scalar(f"hparams/{name}", getattr(args, name), global_step)
         if bandit is not None:
             tick = time.perf_counter()
-            for tag, scalar in bandit.scalars().items():
-                writer.add_scalar(tag, scalar, global_step)
+            bandit_scalars = bandit.scalars()
             if credit is not None:
-                writer.add_scalar("ultho/credit", credit, global_step)
+                bandit_scalars["ultho/credit"] = credit
+            # One event holding them all: add_scalar costs about 0.14 ms a tag, over 10 ms an iteration here.
+            writer.file_writer.add_summary(Summary(value=[
+                Summary.Value(tag=tag, simple_value=float(x)) for tag, x in bandit_scalars.items()]), global_step)
             ultho_seconds += time.perf_counter() - tick
 
         if args.eval_every and iteration % args.eval_every == 0 and iteration != num_iterations and args.eval_episodes:
