@@ -50,7 +50,7 @@ PRESETS = {
     "atari": Preset("ppo_ultho_atari.py", ("BattleZone", "DoubleDunk", "NameThisGame", "Phoenix", "Qbert"),
                     10_000_000, 1_827),
     "minigrid": Preset("ppo_ultho_minigrid.py", ("MiniGrid-DoorKey-6x6-v0", "MiniGrid-LavaGapS7-v0",
-                                                 "MiniGrid-Empty-16x16-v0"), 500_000, 4_172),
+                                                 "MiniGrid-Empty-16x16-v0"), 500_000, 4_517),
     "pybullet": Preset("ppo_ultho_pybullet.py", ("AntBulletEnv-v0", "HalfCheetahBulletEnv-v0", "HopperBulletEnv-v0",
                                                  "Walker2DBulletEnv-v0"), 2_000_000, 682),
 }
