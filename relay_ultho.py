@@ -1,7 +1,9 @@
 """Relay-ULTHO (Algorithm 2 of Yuan et al., ICCV 2025) in one command, for any ppo_ultho_*.py script.
 
 A full ULTHO run (or an existing one, ``--from``) names the cluster of interest (COI, selected most often)
-and the neglected cluster of interest (NOI, selected least often). ULTHO then runs twice more from scratch
+and the neglected cluster of interest (NOI, selected least often among the other clusters; ties go to the
+earliest cluster in the search space, so the two differ even when a bandit chose its clusters in strict
+rotation). ULTHO then runs twice more from scratch
 with the same seed and settings, once searching only the COI and once only the NOI; the better of the two by
 final score is the Relay-ULTHO result, for a budget of three runs. ``relay.json`` in the relay directory
 records all of it and is rewritten atomically as the runs finish.
@@ -25,7 +27,7 @@ import subprocess
 import sys
 from typing import Callable, Literal, Optional, Sequence, TextIO
 
-from ultho_bandit import format_value
+from ultho_bandit import clusters_of_interest, format_value
 
 TOOL = "relay_ultho.py"
 RELAY_FORMAT = 1
@@ -181,10 +183,12 @@ def checked_full_summary(summary: dict, where: str) -> tuple[str, str]:
     if len(bandit["search_space"]) < 2:
         raise UsageError(f"{where} searched one cluster ({', '.join(bandit['search_space'])}): Relay-ULTHO "
                          "needs a full run over at least two clusters, since its COI and NOI would coincide")
-    if bandit["coi"] == bandit["noi"]:
-        raise UsageError(f"{where}: COI and NOI are both {bandit['coi']} (selections {bandit['selections']}); "
-                         "the full run credited too few selections to tell its clusters apart")
-    return bandit["coi"], bandit["noi"]
+    if sum(bandit["selections"].values()) == 0:
+        raise UsageError(f"{where} credited no selection (selections {bandit['selections']}): it says nothing "
+                         "about its clusters; give it more than one iteration")
+    # Recomputed rather than read, so that full runs summarised before the NOI rule took "the least-selected
+    # other cluster" still get two different clusters.
+    return clusters_of_interest(bandit["selections"])
 
 
 def relay(script: str, script_args: list[str], relay_dir: str, from_run: Optional[str] = None,

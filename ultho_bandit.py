@@ -69,6 +69,26 @@ def validate_search_space(search_space: Mapping[str, Sequence[Any]]) -> SearchSp
     return clean
 
 
+def clusters_of_interest(selections: Mapping[str, int]) -> tuple[str, str]:
+    """Eq. 7: ``(COI, NOI)`` from ``{cluster: times selected}`` in the search space's order.
+
+    The COI is the most-selected cluster, the NOI the least-selected cluster *other than the COI*; ties go
+    to the earliest cluster in the search space's order at both steps. So the two differ whenever there are
+    two clusters or more, even when every cluster was selected equally often (a strict rotation gives COI =
+    the first cluster, NOI = the second). With one cluster both are that cluster.
+
+    Raises:
+        ValueError: ``selections`` is empty.
+    """
+    names = list(selections)
+    if not names:
+        raise ValueError("no clusters: the COI and NOI need at least one")
+    coi = max(names, key=lambda name: (selections[name], -names.index(name)))
+    others = [name for name in names if name != coi] or [coi]
+    noi = min(others, key=lambda name: (selections[name], names.index(name)))
+    return coi, noi
+
+
 class _Arm:
     """One arm (a cluster or a value): its count N and the FIFO window behind its utility U."""
 
@@ -194,14 +214,13 @@ class ULTHO:
         return {name: arm.utility for name, arm in zip(self.cluster_names, self._clusters)}
 
     def cluster_of_interest(self) -> str:
-        """Eq. 7: the cluster of interest (COI), the most-selected cluster; ties go to the earliest."""
-        counts = self.selections()
-        return max(self.cluster_names, key=lambda name: (counts[name], -self.cluster_names.index(name)))
+        """Eq. 7: the cluster of interest (COI), the most-selected cluster (see :func:`clusters_of_interest`)."""
+        return clusters_of_interest(self.selections())[0]
 
     def neglected_cluster_of_interest(self) -> str:
-        """Eq. 7: the neglected cluster of interest (NOI), the least-selected cluster; ties: earliest."""
-        counts = self.selections()
-        return min(self.cluster_names, key=lambda name: (counts[name], self.cluster_names.index(name)))
+        """Eq. 7: the neglected cluster of interest (NOI), the least-selected other cluster (see
+        :func:`clusters_of_interest`)."""
+        return clusters_of_interest(self.selections())[1]
 
     def scalars(self) -> dict[str, float]:
         """A flat ``{tag: float}`` for TensorBoard: one ``writer.add_scalar(tag, x, step)`` per item.

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ultho_bandit import ULTHO, format_value, parse_clusters
+from ultho_bandit import ULTHO, clusters_of_interest, format_value, parse_clusters
 
 # ----------------------------------------------------------------------------------------------------------
 # Hand-computed sequences. The bounds in the comments were worked out with a calculator, not with the module.
@@ -95,13 +95,37 @@ def test_scalar_tags_cover_every_arm():
 
 def test_coi_noi_ties_go_to_earliest():
     bandit = ULTHO({"a": [1], "b": [2], "c": [3]}, c=1.0)
-    assert bandit.cluster_of_interest() == "a" and bandit.neglected_cluster_of_interest() == "a"
+    # Nothing selected: all tie, COI = a, NOI = the earliest of the others.
+    assert bandit.cluster_of_interest() == "a" and bandit.neglected_cluster_of_interest() == "b"
     for u in (0.0, 0.0):  # i=1 -> a (all zero); i=2: a = sqrt(ln2/2), b = c = sqrt(ln 2) -> b
         bandit.select()
         bandit.update(u)
     assert bandit.selections() == {"a": 1, "b": 1, "c": 0}
     assert bandit.cluster_of_interest() == "a"
     assert bandit.neglected_cluster_of_interest() == "c"
+
+
+def test_noi_differs_from_coi_after_a_strict_rotation():
+    # c=5 with credits in [0, 1]: the bonus dominates and the bandit rotates a, b, c, a, b, c, ...
+    bandit = ULTHO({"a": [1], "b": [2], "c": [3]}, c=5.0)
+    chosen = []
+    for _ in range(9):
+        chosen.append(bandit.select()[0])
+        bandit.update(0.5)
+    assert chosen == ["a", "b", "c"] * 3
+    assert bandit.selections() == {"a": 3, "b": 3, "c": 3}
+    assert (bandit.cluster_of_interest(), bandit.neglected_cluster_of_interest()) == ("a", "b")
+
+
+def test_clusters_of_interest_rule():
+    assert clusters_of_interest({"lr": 81, "mb": 81, "vf": 81}) == ("lr", "mb")
+    assert clusters_of_interest({"lr": 5, "mb": 9, "vf": 9}) == ("mb", "lr")
+    assert clusters_of_interest({"lr": 9, "mb": 5, "vf": 5}) == ("lr", "mb")
+    assert clusters_of_interest({"lr": 7, "mb": 9, "vf": 2}) == ("mb", "vf")
+    assert clusters_of_interest({"lr": 4, "mb": 4}) == ("lr", "mb")
+    assert clusters_of_interest({"only": 3}) == ("only", "only")
+    with pytest.raises(ValueError):
+        clusters_of_interest({})
 
 
 def test_format_value_labels():

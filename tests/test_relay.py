@@ -118,15 +118,31 @@ def test_from_reuses_a_finished_full_run(interrupted_relay, tmp_path):
     assert not (tmp_path / "r").exists()
 
 
-def test_coi_equal_to_noi_after_the_full_run_is_reported(tmp_path):
-    # One iteration: the only selection is never credited, both clusters have count 0, COI = NOI.
+def test_full_run_without_a_credited_selection_is_reported(tmp_path):
+    # One iteration: the only selection is never credited, so the full run says nothing about its clusters.
     one_iteration = without_flag(TINY, "--total-timesteps") + ["--total-timesteps", "256", "--quiet"]
     result = run(TOOL, SCRIPT, "--relay-dir", str(tmp_path / "r"), "--quiet", "--", *one_iteration)
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and "COI and NOI are both learning_rate" in lines[0], result.stderr
-    assert "too few selections" in lines[0]
+    assert len(lines) == 1 and "credited no selection (selections {'learning_rate': 0, 'minibatch_size': 0})" \
+        in lines[0], result.stderr
     assert not (tmp_path / "r" / "coi").exists()
+
+
+def test_clusters_selected_equally_often_still_relay(tmp_path):
+    """A full tie (the bandit rotated its clusters): COI = the first cluster, NOI = the second, and both run."""
+    # 17 iterations: 16 credited selections; at c=5 the bonus outweighs Empty-5x5's values in [0, 1], so the
+    # bandit alternates between its two clusters and each is chosen 8 times.
+    tied = without_flag(TINY, "--total-timesteps") + ["--total-timesteps", str(17 * 256), "--ultho-c", "5"]
+    relay_dir = tmp_path / "r"
+    result = run(TOOL, SCRIPT, "--relay-dir", str(relay_dir), "--quiet", "--", *tied)
+    assert result.returncode == 0, result.stderr
+    full = summary(str(relay_dir / "full"))
+    assert full["bandit"]["selections"] == {"learning_rate": 8, "minibatch_size": 8}
+    assert (full["bandit"]["coi"], full["bandit"]["noi"]) == ("learning_rate", "minibatch_size")
+    record = summary_of(relay_dir / "relay.json")
+    assert (record["coi"], record["noi"], record["status"]) == ("learning_rate", "minibatch_size", "done")
+    assert summary(str(relay_dir / "noi"))["bandit"]["search_space"] == {"minibatch_size": [32, 64, 128]}
 
 
 BAD_INPUTS = [
