@@ -16,6 +16,7 @@ import concurrent.futures
 import contextlib
 import io
 import itertools
+import math
 import os
 import subprocess
 import sys
@@ -103,9 +104,9 @@ class Run:
         return script_command(self.script, self.args, self.path, resume=False)
 
 
-def expand(scripts: list[str], env_ids: list[str], methods: list[str], c_values: list[float], windows: list[int],
+def expand(scripts: list[str], env_ids: list[str], methods: list[str], points: list[tuple[float, int]],
            seeds: list[int], total_timesteps: Optional[int], extra_args: list[str], out: str) -> list[Run]:
-    """Every grid point in a fixed order; a relay follows the ULTHO run it reuses."""
+    """Every grid point in a fixed order; a relay follows the ULTHO run it reuses. ``points``: the (c, W)."""
     runs = []
     budget = ["--total-timesteps", str(total_timesteps)] if total_timesteps is not None else []
     for script, env_id, seed in itertools.product(scripts, env_ids, seeds):
@@ -116,7 +117,7 @@ def expand(scripts: list[str], env_ids: list[str], methods: list[str], c_values:
             runs.append(Run(f"{prefix}__ppo__s{seed}", script, env_id, "ppo", None, None, seed,
                             os.path.join(out, "runs", f"{prefix}__ppo__s{seed}"),
                             [*base, "--no-ultho", *extra_args, "--quiet"]))
-        for c, window in itertools.product(c_values, windows):
+        for c, window in points:
             tag = f"c{format_value(c)}_w{window}"
             bandit = ["--ultho-c", format_value(c), "--ultho-window", str(window)]
             ultho = None
@@ -251,6 +252,17 @@ def total_steps(runs: list[Run], budget_of) -> int:
     return sum(budget_of(r) * (1 if r.method != "relay" else 2 if r.source is not None else 3) for r in runs)
 
 
+def parse_point(text: str) -> tuple[float, int]:
+    """``"5:10"`` -> (5.0, 10), for --points."""
+    c, sep, window = text.partition(":")
+    try:
+        if not sep:
+            raise ValueError
+        return float(c), int(window)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not C:W (e.g. 5:10)") from None
+
+
 def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     parser = argparse.ArgumentParser(
         prog=TOOL,
@@ -274,6 +286,9 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     grid.add_argument("--methods", nargs="+", choices=METHODS, help="default without a preset: ppo ultho")
     grid.add_argument("--c", nargs="+", type=float, metavar="C", help="ULTHO's exploration coefficients (default 5)")
     grid.add_argument("--window", nargs="+", type=int, metavar="W", help="ULTHO's windows (default 10)")
+    grid.add_argument("--points", nargs="+", type=parse_point, metavar="C:W",
+                      help="(c, W) pairs for ultho and relay, e.g. 5:10 1:50, instead of every --c with every "
+                           "--window"),
     grid.add_argument("--seeds", nargs="+", type=int, metavar="SEED", help="seeds (default 1)")
     grid.add_argument("--total-timesteps", type=int, metavar="N",
                       help="steps per run (default: the preset's budget, else the script's default)")
@@ -303,15 +318,22 @@ def main(argv: list[str]) -> int:
         if not scripts or not env_ids:
             raise UsageError("give --paper PRESET, or --scripts and --env-ids")
         methods = args.methods or (list(METHODS) if preset else ["ppo", "ultho"])
+        if args.points and (args.c or args.window):
+            raise UsageError("--points gives the (c, W) pairs itself; leave out --c and --window")
         c_values = args.c or (list(PAPER_C) if preset else [5.0])
         windows = args.window or (list(PAPER_WINDOWS) if preset else [10])
+        points = args.points or list(itertools.product(c_values, windows))
+        if args.points:
+            c_values = sorted({c for c, _ in points})
+            windows = sorted({w for _, w in points})
         seeds = args.seeds or (list(PAPER_SEEDS) if preset else [1])
         total_timesteps = args.total_timesteps or (preset.total_timesteps if preset else None)
-        for name, values in (("--methods", methods), ("--c", c_values), ("--window", windows), ("--seeds", seeds)):
+        for name, values in (("--methods", methods), ("--c", c_values), ("--window", windows), ("--seeds", seeds),
+                             ("--points", [f"{format_value(c)}:{w}" for c, w in points])):
             if len(set(values)) != len(values):
                 raise UsageError(f"{name} {' '.join(map(str, values))}: a value is given twice")
-        if any(c < 0 for c in c_values) or any(w < 1 for w in windows):
-            raise UsageError("--c must be >= 0 and --window >= 1")
+        if any(not (math.isfinite(c) and c >= 0) for c in c_values) or any(w < 1 for w in windows):
+            raise UsageError("--c must be finite and >= 0, --window >= 1")
         for name, value in (("--total-timesteps", args.total_timesteps), ("--workers", args.workers)):
             if value is not None and value <= 0:
                 raise UsageError(f"{name} must be positive, got {value}")
@@ -325,9 +347,10 @@ def main(argv: list[str]) -> int:
         # Absolute, because a Ray task's working directory is not the driver's.
         out = os.path.abspath(args.out or os.path.join("runs", f"sweep-{args.paper or 'custom'}"))
         grid = {"scripts": [os.path.basename(s) for s in scripts], "env_ids": env_ids, "methods": methods,
-                "c": c_values, "window": windows, "seeds": seeds, "total_timesteps": total_timesteps,
+                "c": c_values, "window": windows, "points": [[c, w] for c, w in points], "seeds": seeds,
+                "total_timesteps": total_timesteps,
                 "extra_args": extra_args}
-        runs = expand(scripts, env_ids, methods, c_values, windows, seeds, total_timesteps, extra_args, out)
+        runs = expand(scripts, env_ids, methods, points, seeds, total_timesteps, extra_args, out)
 
         if args.dry_run:
             for run in runs:

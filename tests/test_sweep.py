@@ -57,6 +57,18 @@ def test_paper_preset_dry_run_expands_the_papers_grid(preset, envs, budget, tmp_
     assert not (tmp_path / "s").exists()
 
 
+def test_points_give_the_c_w_pairs_instead_of_the_product(tmp_path):
+    """The paper's MiniGrid protocol: PPO, ULTHO and Relay-ULTHO at (c, W) = (5, 10) and (1, 50) only."""
+    result = run(TOOL, "--paper", "minigrid", "--points", "5:10", "1:50", "--dry-run", "--out", str(tmp_path / "s"))
+    assert result.returncode == 0, result.stderr
+    commands = result.stdout.strip().splitlines()
+    assert len(commands) == 3 * 5 * (1 + 2 + 2)
+    for pair in ("--ultho-c 5.0 --ultho-window 10 ", "--ultho-c 1.0 --ultho-window 50 "):
+        assert sum(pair in c + " " for c in commands) == 2 * 3 * 5
+    assert not any("--ultho-c 1.0 --ultho-window 10 " in c + " " for c in commands)
+    assert f"75 runs, {3 * 5 * (1 + 2 + 2 * 2) * 500_000:,} environment steps" in result.stderr
+
+
 @pytest.fixture(scope="module")
 def local_sweep(tmp_path_factory):
     out = tmp_path_factory.mktemp("local") / "s"
@@ -70,7 +82,8 @@ def test_local_sweep_runs_every_grid_point_and_indexes_it(local_sweep):
     record = index(out)
     assert record["format"] == 1
     assert record["grid"] == {"scripts": [SCRIPT], "env_ids": ["MiniGrid-Empty-5x5-v0"],
-                              "methods": ["ppo", "ultho", "relay"], "c": [5.0], "window": [10], "seeds": [1],
+                              "methods": ["ppo", "ultho", "relay"], "c": [5.0], "window": [10],
+                              "points": [[5.0, 10]], "seeds": [1],
                               "total_timesteps": 512, "extra_args": TINY[TINY.index("--") + 1:]}
     runs = {r["method"]: r for r in record["runs"]}
     assert len(record["runs"]) == 3 and all(set(r) == RUN_FIELDS for r in record["runs"])
@@ -202,6 +215,10 @@ BAD_INPUTS = [
     (["--paper", "minigrid", "--workers", "0"], "--workers must be positive, got 0"),
     (["--paper", "minigrid", "--methods", "pbt"], "invalid choice: 'pbt'"),
     (["--paper", "minigrid", "--", "--seed", "3"], "--seed after -- is set by the grid"),
+    (["--paper", "minigrid", "--points", "5"], "argument --points: '5' is not C:W (e.g. 5:10)"),
+    (["--paper", "minigrid", "--points", "5:10", "--window", "50"], "--points gives the (c, W) pairs itself"),
+    (["--paper", "minigrid", "--points", "5:10", "5.0:10"], "--points 5.0:10 5.0:10: a value is given twice"),
+    (["--paper", "minigrid", "--points", "nan:10"], "--c must be finite and >= 0"),
     (["--paper", "minigrid", "--", "--resume", "x"], "--resume after -- is set by the grid"),
 ]
 
