@@ -1,17 +1,24 @@
 """The paper's figures and tables from ULTHO run directories, in one command.
 
-Reads every run directory below the given paths (TensorBoard events through tensorboard's own reader,
-``summary.json``, Relay-ULTHO's ``relay.json`` and ``sweep.py``'s ``sweep.json``), groups the runs by
-benchmark, environment and method (PPO, ULTHO per (c, W), Relay-ULTHO) and writes PNG figures plus one
-``report.md`` that shows them with the tables:
+Reads every run directory below the given paths (TensorBoard events through tensorboard's own reader, or the
+``scalars.csv`` of an exported study, ``summary.json``, Relay-ULTHO's ``relay.json`` and ``sweep.py``'s
+``sweep.json``), groups the runs by benchmark, environment and method (PPO, ULTHO per (c, W), Relay-ULTHO) and
+writes PNG figures plus one ``report.md`` that shows them with the tables:
 
 1. learning curves per environment (mean and standard deviation over seeds, one line per method);
-2. the aggregate table: normalized score per method, mean and IQM with 95% stratified-bootstrap intervals
-   over seeds and games (Agarwal et al. 2021), and the budget in steps; also ``aggregate.csv``;
-3. the decision process: cumulative share of each cluster among the selections, share of each value
-   within its cluster, aggregated over runs and per run;
-4. each cluster's utility and upper confidence bound over training;
-5. robustness: the aggregate score over the (c, W) grid.
+2. per-environment scores: the final score (mean return of the last 100 training episodes) and the
+   evaluation score, mean and 95% interval over seeds;
+3. the aggregate table: score per method, mean and IQM with 95% stratified-bootstrap intervals over seeds and
+   environments (Agarwal et al. 2021), over the environments every method in the table covers; also
+   ``aggregate.csv``. Scores are normalized with fixed reference scores, never with the runs present;
+4. sample efficiency: the environment steps until a run's running score first reaches a threshold;
+5. the decision process: cumulative share of each cluster among the selections, share of each value within
+   its cluster, and each cluster's utility and upper confidence bound over training;
+6. robustness: the score at every (c, W) of each environment.
+
+``--export-data DIR`` also writes a compact copy of the study (every ``summary.json``, ``relay.json`` and
+``sweep.json``, and each run's curves as ``scalars.csv`` instead of its event files) from which the same
+report can be redrawn: ``python ultho_report.py DIR --out ...``.
 
     python ultho_report.py runs/ --out report/
 """
@@ -20,8 +27,10 @@ import argparse
 import csv
 import json
 import logging
+import math
 import os
 import re
+import shutil
 import sys
 from collections import Counter, defaultdict
 from dataclasses import dataclass, field
@@ -42,21 +51,35 @@ PROCGEN_EASY = {
     "heist": (3.5, 10), "jumper": (3, 10), "leaper": (3, 10), "maze": (5, 10), "miner": (1.5, 13),
     "ninja": (3.5, 10), "plunder": (4.5, 30), "starpilot": (2.5, 64),
 }
-"""Procgen easy-mode (R_min, R_max), Cobbe et al. 2020 (ULTHO_SPEC.md)."""
+"""Procgen easy-mode (R_min, R_max), Cobbe et al. 2020 (docs/benchmarks.md)."""
 
 ALE_HUMAN = {
     "BattleZone": (2360.0, 37187.5), "DoubleDunk": (-18.6, -16.4), "NameThisGame": (2292.3, 8049.0),
     "Phoenix": (761.4, 7242.6), "Qbert": (163.9, 13455.0),
 }
-"""ALE (random, human) scores for human normalization (ULTHO_SPEC.md)."""
+"""ALE (random, human) scores for human normalization (docs/benchmarks.md)."""
+
+PYBULLET_REFERENCE = {
+    "AntBulletEnv": (362.6, 2865.9), "HalfCheetahBulletEnv": (-1268.9, 2924.7),
+    "HopperBulletEnv": (19.9, 2575.1), "Walker2DBulletEnv": (16.7, 2110.0),
+}
+"""PyBullet (uniform random policy, rl-baselines3-zoo's PPO after 2M steps) returns (docs/benchmarks.md)."""
+
+MINIGRID_RANGE = {"MiniGrid": (0.0, 1.0)}
+"""MiniGrid's returns lie in [0, 1] (1 - 0.9 * steps / max_steps on success, else 0): used as they are."""
 
 BENCHMARKS = {"procgen": "Procgen", "atari": "ALE", "minigrid": "MiniGrid", "pybullet": "PyBullet"}
+REFERENCES = {"procgen": PROCGEN_EASY, "atari": ALE_HUMAN, "pybullet": PYBULLET_REFERENCE,
+              "minigrid": MINIGRID_RANGE}
 NORMALIZATION = {
-    "procgen": "Procgen easy-mode min-max normalized test score (Cobbe et al. 2020 constants)",
+    "procgen": "Procgen easy-mode min-max normalized test score, (R - R_min) / (R_max - R_min) with Cobbe et al. "
+               "2020's constants",
     "atari": "human-normalized score, (R - random) / (human - random)",
+    "pybullet": "(R - random policy) / (rl-baselines3-zoo PPO - random policy), the references of docs/benchmarks.md",
+    "minigrid": "the final score as it is (MiniGrid's returns lie in [0, 1])",
 }
-MIN_MAX_OVER_RUNS = "min-max normalized final score per environment over the runs present (0 = the worst run, 1 = the best)"
 RETURN_TAG = "charts/episodic_return"
+SCALARS_CSV = "scalars.csv"
 GRID_POINTS = 200
 STEPS = EngFormatter(sep="")
 
@@ -90,9 +113,12 @@ class Run:
     budget: int
     raw_score: float | None
     score_note: str | None = None
+    eval_score: float | None = None  # raw mean return of the final evaluation (Procgen: the test levels)
     curve: np.ndarray | None = None  # (T, 2): step, episodic return
+    curve_budget: int = 0  # the steps the curve's run trained for (a relay: its winning run's)
     series: dict[str, np.ndarray] = field(default_factory=dict)  # ultho/* tags -> (T, 2)
     search_space: dict[str, list] | None = None
+    value_selections: dict[str, list[int]] | None = None  # credited selections of each value (summary.json)
     score: float | None = None  # normalized, set by Study.normalize
     label: str = ""  # the method, set by Study.label_methods
     narrowed: bool = False  # ULTHO on a search space other than its benchmark's widest (set with the label)
@@ -105,8 +131,9 @@ class Study:
         self.runs: list[Run] = []
         self.warnings: list[str] = []
         self.missing: list[str] = []
-        self.grid: dict[str, tuple[set, set]] = defaultdict(lambda: (set(), set()))  # benchmark -> (c, W)
+        self.grid: dict[tuple[str, str], set] = defaultdict(set)  # (benchmark, env_id) -> {(c, W)} of the sweeps
         self._seen: set[str] = set()
+        self.files: list[str] = []  # every file the study was read from, for --export-data
 
     def warn(self, path: str, what: str) -> None:
         line = f"{path}: {what}"
@@ -127,11 +154,15 @@ class Study:
         if not isinstance(data, dict):
             self.warn(path, "not a JSON object; skipped")
             return None
+        self.files.append(path)
         return data
 
     def read_scalars(self, run_dir: str) -> dict[str, np.ndarray]:
-        """The return curve and the ultho/* series, read with tensorboard's own reader."""
-        if not any(name.startswith("events.out.tfevents") for name in os.listdir(run_dir)):
+        """The return curve, the hparams/* and ultho/* series: from the event files, else from scalars.csv."""
+        names = os.listdir(run_dir)
+        if not any(name.startswith("events.out.tfevents") for name in names):
+            if SCALARS_CSV in names:
+                return self.read_scalars_csv(os.path.join(run_dir, SCALARS_CSV))
             self.warn(run_dir, "no TensorBoard event files; no curves for this run")
             return {}
         damaged.files.clear()
@@ -140,12 +171,29 @@ class Study:
             accumulator.Reload()
             tags = accumulator.Tags()["scalars"]
             series = {tag: np.array([(e.step, e.value) for e in accumulator.Scalars(tag)], dtype=float)
-                      for tag in tags if tag == RETURN_TAG or tag.startswith("ultho/")}
+                      for tag in tags if reported_tag(tag)}
         except Exception as err:  # noqa: BLE001  (a damaged file of any kind is skipped, never a traceback)
             self.warn(run_dir, f"TensorBoard events unreadable ({err.__class__.__name__}); no curves for this run")
             return {}
         for event_file in sorted(damaged.files):
             self.warn(event_file, "damaged or truncated TensorBoard events; read up to the damage")
+        return series
+
+    def read_scalars_csv(self, path: str) -> dict[str, np.ndarray]:
+        try:
+            with open(path, newline="") as f:
+                rows = list(csv.reader(f))
+            header, body = rows[0], rows[1:]
+            if header[0] != "step":
+                raise ValueError("the first column is not 'step'")
+            series = {}
+            for k, tag in enumerate(header[1:], start=1):
+                # float32 first: TensorBoard stores float32, so both readers give the same numbers.
+                points = [(float(row[0]), float(np.float32(row[k]))) for row in body if row[k] != ""]
+                series[tag] = np.array(points, dtype=float).reshape(-1, 2)
+        except (OSError, ValueError, IndexError) as err:
+            self.warn(path, f"unreadable ({err.__class__.__name__}: {err}); no curves for this run")
+            return {}
         return series
 
     # ------------------------------------------------------------------ discovery
@@ -158,7 +206,8 @@ class Study:
                     sweeps.append(directory)
                 if "relay.json" in files:
                     relays.append(directory)
-                elif "summary.json" in files or any(f.startswith("events.out.tfevents") for f in files):
+                elif "summary.json" in files or SCALARS_CSV in files or \
+                        any(f.startswith("events.out.tfevents") for f in files):
                     run_dirs.append(directory)
         for directory in sweeps:
             listed_relays, listed_runs = self.load_sweep(directory)
@@ -188,11 +237,11 @@ class Study:
             return relays, runs
         try:
             grid = sweep["grid"]
-            for script in grid["scripts"]:
-                cs, windows = self.grid[benchmark_of(script)]
-                if "ultho" in grid["methods"] or "relay" in grid["methods"]:
-                    cs.update(float(c) for c in grid["c"])
-                    windows.update(int(w) for w in grid["window"])
+            if "ultho" in grid["methods"] or "relay" in grid["methods"]:
+                points = grid.get("points") or [[c, w] for c in grid["c"] for w in grid["window"]]
+                for script in grid["scripts"]:
+                    for env_id in grid["env_ids"]:
+                        self.grid[(benchmark_of(script), env_id)].update((float(c), int(w)) for c, w in points)
             for entry in sweep["runs"]:
                 where = os.path.join(directory, entry["path"])
                 if entry["status"] != "done":
@@ -225,10 +274,14 @@ class Study:
         winner = self.read_summary(winner_dir)
         if winner is None:
             return
+        for role in ("coi", "noi"):  # the losing run too, so that --export-data keeps the whole relay
+            if relay.get(f"{role}_run") and relay[f"{role}_run"] != relay["winner_run"]:
+                self.read_summary(os.path.join(directory, relay[f"{role}_run"]))
         full = self.read_summary(full_dir) or {}
         full_bandit = full.get("bandit") or {}
         run = Run(directory, benchmark, env_id, "relay", full_bandit.get("c"), full_bandit.get("window"), seed,
-                  budget, *raw_score(winner, benchmark), curve=self.read_scalars(winner_dir).get(RETURN_TAG))
+                  budget, *raw_score(winner, benchmark), eval_score=eval_score(winner),
+                  curve=self.read_scalars(winner_dir).get(RETURN_TAG), curve_budget=int(winner["global_step"]))
         self.runs.append(run)
 
     def read_summary(self, run_dir: str) -> dict | None:
@@ -243,6 +296,7 @@ class Study:
                 bandit = summary["bandit"]
                 float(bandit["c"]), int(bandit["window"]), dict(bandit["search_space"])
             raw_score(summary, benchmark_of(summary["script"]))
+            eval_score(summary)
         except (KeyError, TypeError, ValueError) as err:
             self.warn(path, f"not in the summary.json format ({err.__class__.__name__}: {err}); skipped")
             return None
@@ -264,30 +318,23 @@ class Study:
             run_dir, benchmark, summary["env_id"], "ultho" if bandit else "ppo",
             float(bandit["c"]) if bandit else None, int(bandit["window"]) if bandit else None,
             int(summary["seed"]), int(summary["global_step"]), *raw_score(summary, benchmark),
-            curve=scalars.get(RETURN_TAG), series={k: v for k, v in scalars.items() if k.startswith("ultho/")},
+            eval_score=eval_score(summary), curve=scalars.get(RETURN_TAG), curve_budget=int(summary["global_step"]),
+            series={k: v for k, v in scalars.items() if k != RETURN_TAG},
             search_space=bandit["search_space"] if bandit else None,
+            value_selections=bandit.get("value_selections") if bandit else None,
         ))
 
     # ------------------------------------------------------------------ scores and methods
     def normalize(self) -> None:
-        by_env = defaultdict(list)
+        """Fixed reference scores per benchmark: a score never depends on which other runs are present."""
         for run in self.runs:
             if run.raw_score is None:
                 self.missing.append(f"`{run.path}` has no score (no training episode ended)")
-            elif run.benchmark in NORMALIZATION:
-                run.score = fixed_normalization(run.benchmark, run.env_id, run.raw_score)
-                if run.score is None:
-                    self.missing.append(f"`{run.path}`: no normalization constants for {run.env_id}; not scored")
-            else:
-                by_env[(run.benchmark, run.env_id)].append(run)
-        for (_, env_id), runs in by_env.items():
-            low, high = min(r.raw_score for r in runs), max(r.raw_score for r in runs)
-            if high > low:
-                for run in runs:
-                    run.score = (run.raw_score - low) / (high - low)
-            else:
-                self.missing.append(f"{env_id}: every run scored {low:g}, so min-max normalization has no range; "
-                                    "not scored")
+                continue
+            run.score = normalized(run.benchmark, run.env_id, run.raw_score)
+            if run.score is None:
+                self.missing.append(f"`{run.path}`: no reference scores for {run.env_id}; in the per-environment "
+                                    "tables, not in the aggregate")
 
     def label_methods(self) -> None:
         """PPO, ULTHO (c, W), Relay-ULTHO (c, W); a search space other than the benchmark's widest one is named."""
@@ -304,6 +351,13 @@ class Study:
             run.narrowed = bool(run.search_space) and run.search_space != widest[run.benchmark]
             if run.narrowed:
                 run.label += " on " + ", ".join(f"{k}={'/'.join(map(str, v))}" for k, v in run.search_space.items())
+
+
+def reported_tag(tag: str) -> bool:
+    """The tags the report draws from: the return, the settings schedule and the cluster-level bandit series."""
+    if tag == RETURN_TAG or tag.startswith("hparams/") or tag.startswith("ultho/selected_") or tag == "ultho/credit":
+        return True
+    return tag.startswith("ultho/") and tag.count("/") == 2  # ultho/<kind>/<cluster>, not its per-value tags
 
 
 def benchmark_of(script: str) -> str:
@@ -325,13 +379,26 @@ def raw_score(summary: dict, benchmark: str) -> tuple[float | None, str | None]:
     return (None if summary["final_score"] is None else float(summary["final_score"])), note
 
 
-def fixed_normalization(benchmark: str, env_id: str, raw: float) -> float | None:
-    """Procgen easy-mode min-max or ALE human-normalized score; None for a game without constants."""
-    table = PROCGEN_EASY if benchmark == "procgen" else ALE_HUMAN
+def eval_score(summary: dict) -> float | None:
+    """The final evaluation's mean return (fresh episodes of the final policy; Procgen: the test levels)."""
+    evaluation = summary.get("eval") or {}
+    value = evaluation.get("mean_return")
+    return None if value is None else float(value)
+
+
+def reference_of(benchmark: str, env_id: str) -> tuple[float, float] | None:
+    """The fixed (low, high) reference scores of an environment: the score is (R - low) / (high - low)."""
+    table = REFERENCES[benchmark]
     game = game_of(env_id, table)
-    if game is None:
+    return None if game is None else table[game]
+
+
+def normalized(benchmark: str, env_id: str, raw: float) -> float | None:
+    """The score on the benchmark's fixed scale; None for an environment without reference scores."""
+    reference = reference_of(benchmark, env_id)
+    if reference is None:
         return None
-    low, high = table[game]
+    low, high = reference
     return (raw - low) / (high - low)
 
 
@@ -362,12 +429,83 @@ def aggregate_with_interval(strata: list[np.ndarray], name: str, seed: int, reps
     return float(aggregate(np.concatenate(strata))), float(low), float(high)
 
 
-def strata_of(runs: list[Run]) -> list[np.ndarray]:
+def strata_of(runs: list[Run], envs: set[str] | None = None) -> list[np.ndarray]:
+    """The normalized scores grouped by environment (only ``envs`` when given), in a fixed order."""
     games = defaultdict(list)
     for run in runs:
-        if run.score is not None:
+        if run.score is not None and (envs is None or run.env_id in envs):
             games[run.env_id].append(run.score)
     return [np.array(games[g]) for g in sorted(games)]
+
+
+def coverage_groups(runs: list[Run], methods: list[str]) -> list[tuple[list[str], list[str]]]:
+    """[(environments, methods)]: methods grouped by the set of environments they have scored runs on, the
+    widest set first. Each aggregate table compares methods over exactly the same environments."""
+    covered: dict[str, frozenset] = {}
+    for label in methods:
+        envs = frozenset(r.env_id for r in runs if r.label == label and r.score is not None)
+        if envs:
+            covered[label] = envs
+    groups = defaultdict(list)
+    for label in methods:
+        if label in covered:
+            groups[covered[label]].append(label)
+    ordered = sorted(groups, key=lambda envs: (-len(envs), sorted(envs)))
+    return [(sorted(envs), groups[envs]) for envs in ordered]
+
+
+# ---------------------------------------------------------------------- sample efficiency
+def steps_to_threshold(curve: np.ndarray | None, benchmark: str, env_id: str, threshold: float,
+                       window: int) -> float | None:
+    """The first logged step at which the running score reaches ``threshold``, else None.
+
+    The running score is the mean of the last ``window`` logged training returns (each the mean return of the
+    episodes that ended in one iteration), on the benchmark's fixed scale, so a single lucky iteration does not
+    count as solving the task.
+    """
+    reference = reference_of(benchmark, env_id)
+    if curve is None or not len(curve) or reference is None:
+        return None
+    low, high = reference
+    scores = (curve[:, 1] - low) / (high - low)
+    running = np.convolve(scores, np.ones(window) / window, mode="valid")
+    reached = np.nonzero(running >= threshold)[0]
+    return float(curve[reached[0] + window - 1, 0]) if len(reached) else None
+
+
+@dataclass
+class Efficiency:
+    """Steps to the threshold of a group of runs; runs that never reached it count with their whole budget."""
+
+    steps: list[float]
+    budgets: list[int]
+
+    @property
+    def reached(self) -> int:
+        return sum(s is not None for s in self.steps)
+
+    @property
+    def censored_mean(self) -> float:
+        return float(np.mean([b if s is None else s for s, b in zip(self.steps, self.budgets)]))
+
+    def text(self) -> str:
+        if not self.steps:
+            return "–"
+        prefix = "≥ " if self.reached < len(self.steps) else ""
+        return f"{prefix}{steps_text(self.censored_mean)} ({self.reached}/{len(self.steps)})"
+
+
+def steps_text(steps: float) -> str:
+    """12,345 below 100k, else 123k or 1.23M: the precision a table of environment steps needs."""
+    if steps < 100_000:
+        return f"{steps:,.0f}"
+    return f"{steps / 1e3:.0f}k" if steps < 1e6 else f"{steps / 1e6:.3g}M"
+
+
+def efficiency_of(runs: list[Run], threshold: float, window: int) -> Efficiency:
+    scored = [r for r in runs if r.curve is not None and reference_of(r.benchmark, r.env_id) is not None]
+    return Efficiency([steps_to_threshold(r.curve, r.benchmark, r.env_id, threshold, window) for r in scored],
+                      [r.curve_budget for r in scored])
 
 
 # ---------------------------------------------------------------------- series helpers
@@ -430,18 +568,30 @@ def steps_axis(axes: plt.Axes) -> None:
     axes.set_xlabel("environment steps")
 
 
+def env_panels(count: int, width: float = 4.2, height: float = 3.2) -> tuple[plt.Figure, list[plt.Axes]]:
+    """A figure with one panel per environment, at most four a row; unused panels hidden."""
+    columns = min(4, count)
+    rows = -(-count // columns)
+    figure, axes = plt.subplots(rows, columns, figsize=(max(7.5, width * columns), height * rows + 0.8),
+                                squeeze=False, layout="constrained")
+    for panel in axes.flat[count:]:
+        panel.set_visible(False)
+    return figure, list(axes.flat[:count])
+
+
+def method_legend(figure: plt.Figure, methods: list[str], colors: dict) -> None:
+    lines = [plt.Line2D([], [], color=colors[label]) for label in methods]
+    figure.legend(lines, methods, loc="outside lower center", ncol=min(len(lines), 4), frameon=False)
+
+
 def learning_curves(runs: list[Run], benchmark: str, colors: dict, out: str) -> str | None:
     envs = sorted({r.env_id for r in runs if r.curve is not None})
     if not envs:
         return None
-    columns = min(4, len(envs))
-    rows = -(-len(envs) // columns)
-    figure, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.2 * rows + 0.6), squeeze=False,
-                                layout="constrained")
-    for panel, env_id in zip(axes.flat, envs):
+    figure, panels = env_panels(len(envs))
+    for panel, env_id in zip(panels, envs):
         for label in method_order(runs):
-            curves = [r.curve for r in runs if r.env_id == env_id and r.label == label]
-            grid = on_common_grid(curves)
+            grid = on_common_grid([r.curve for r in runs if r.env_id == env_id and r.label == label])
             if grid is None:
                 continue
             steps, values = grid
@@ -452,12 +602,37 @@ def learning_curves(runs: list[Run], benchmark: str, colors: dict, out: str) -> 
         panel.set_ylabel("episodic return")
         steps_axis(panel)
         panel.grid(alpha=0.3)
-    for panel in axes.flat[len(envs):]:
-        panel.set_visible(False)
-    lines = [plt.Line2D([], [], color=colors[label]) for label in method_order(runs)]
-    figure.legend(lines, method_order(runs), loc="outside lower center", ncol=min(len(lines), 4), frameon=False)
+    method_legend(figure, method_order(runs), colors)
     figure.suptitle(f"{BENCHMARKS[benchmark]}: training return (mean ± std over seeds)")
     return save(figure, out, f"curves_{benchmark}.png")
+
+
+def efficiency_figure(runs: list[Run], benchmark: str, colors: dict, threshold: float, window: int,
+                      out: str) -> str | None:
+    """Per environment, the share of each method's runs whose running score has reached the threshold by step t."""
+    envs = sorted({r.env_id for r in runs if r.curve is not None and reference_of(benchmark, r.env_id)})
+    if not envs:
+        return None
+    figure, panels = env_panels(len(envs))
+    for panel, env_id in zip(panels, envs):
+        for label in method_order(runs):
+            members = [r for r in runs if r.env_id == env_id and r.label == label and r.curve is not None]
+            if not members:
+                continue
+            found = efficiency_of(members, threshold, window)
+            horizon = max(found.budgets)
+            reached = sorted(s for s in found.steps if s is not None)
+            steps = [0.0, *reached, float(horizon)]
+            shares = [0.0, *(np.arange(1, len(reached) + 1) / len(members)), len(reached) / len(members)]
+            panel.step(steps, 100 * np.array(shares), where="post", color=colors[label], label=label)
+        panel.set_title(env_id, fontsize=10)
+        panel.set_ylabel(f"runs solved (%)")
+        panel.set_ylim(-3, 103)
+        steps_axis(panel)
+        panel.grid(alpha=0.3)
+    method_legend(figure, method_order(runs), colors)
+    figure.suptitle(f"{BENCHMARKS[benchmark]}: runs solved (running score ≥ {threshold:g})")
+    return save(figure, out, f"efficiency_{benchmark}.png")
 
 
 def decision_panels(share_axes: plt.Axes, value_axes: plt.Axes, runs: list[Run]) -> bool:
@@ -473,10 +648,7 @@ def decision_panels(share_axes: plt.Axes, value_axes: plt.Axes, runs: list[Run])
     steps_axis(share_axes)
     share_axes.legend(loc="upper center", bbox_to_anchor=(0.5, -0.22),
                       ncol=len(space), frameon=False, fontsize=8)
-    counts = np.zeros((len(space), max(len(v) for v in space.values())))
-    for chosen in filter(lambda c: c is not None, map(selections, runs)):
-        for _, cluster, value in chosen:
-            counts[int(cluster), int(value)] += 1
+    counts = value_counts(runs)
     position, ticks, names = 0, [], []
     for k, (cluster, values) in enumerate(space.items()):
         total = counts[k].sum()
@@ -493,6 +665,16 @@ def decision_panels(share_axes: plt.Axes, value_axes: plt.Axes, runs: list[Run])
     value_axes.set_ylabel("share within its cluster (%)")
     value_axes.set_title("intra-cluster: which value is chosen", fontsize=10)
     return True
+
+
+def value_counts(runs: list[Run]) -> np.ndarray:
+    """(clusters, most values): how often each value was selected, pooled over the runs."""
+    space = runs[0].search_space
+    counts = np.zeros((len(space), max(len(v) for v in space.values())))
+    for chosen in filter(lambda c: c is not None, map(selections, runs)):
+        for _, cluster, value in chosen:
+            counts[int(cluster), int(value)] += 1
+    return counts
 
 
 def bound_panel(axes: plt.Axes, runs: list[Run]) -> bool:
@@ -540,40 +722,48 @@ def per_run_figure(run: Run, name: str, out: str) -> str | None:
     return save(figure, out, os.path.join("runs", f"{slug(name)}.png"))
 
 
-def robustness_figure(runs: list[Run], benchmark: str, grid: tuple[set, set], seed: int, reps: int,
+def robustness_figure(runs: list[Run], benchmark: str, grid: dict, seed: int, reps: int,
                       out: str) -> tuple[str | None, list[str]]:
-    """(file name, the (c, W) cells without scored runs)."""
+    """One panel per environment with ULTHO runs: the mean score at each (c, W) with its 95% interval, and PPO.
+    Returns (file name, the (c, W) cells of the sweeps' grids without scored runs)."""
     ultho = [r for r in runs if r.kind == "ultho" and r.score is not None and not r.narrowed]
-    if not ultho:
+    envs = sorted({r.env_id for r in ultho})
+    if not envs:
         return None, []
-    cs = sorted(grid[0] | {r.c for r in ultho})
-    windows = sorted(grid[1] | {r.window for r in ultho})
-    figure, axes = plt.subplots(figsize=(max(5.5, 1.6 * len(cs) * len(windows) + 2), 4.4), layout="constrained")
-    width, labelled, empty = 0.8 / len(cs), set(), []
-    for i, c in enumerate(cs):
-        for j, window in enumerate(windows):
-            x = j + (i - (len(cs) - 1) / 2) * width
-            cell = strata_of([r for r in ultho if r.c == c and r.window == window])
-            if not cell:
-                empty.append(f"(c={c:g}, W={window})")
-                axes.text(x, 0.03, f"c = {c:g}: no runs", rotation=90, ha="center", va="bottom", fontsize=8,
-                          color="gray", transform=axes.get_xaxis_transform())
-                continue
-            point, low, high = (100 * v for v in aggregate_with_interval(cell, "mean", seed, reps))
-            axes.bar(x, point, width * 0.9, yerr=[[point - low], [high - point]], color=f"C{i}", capsize=3,
-                     label=None if c in labelled else f"c = {c:g}")
-            labelled.add(c)
-    ppo = strata_of([r for r in runs if r.kind == "ppo"])
-    if ppo:
-        point, low, high = (100 * v for v in aggregate_with_interval(ppo, "mean", seed, reps))
-        axes.axhline(point, color="black", linestyle="--", label="PPO (fixed settings)")
-        axes.axhspan(low, high, color="black", alpha=0.08, zorder=0)
-    axes.set_xticks(range(len(windows)), [f"W = {w}" for w in windows])
-    axes.set_xlim(-0.5, len(windows) - 0.5)
-    axes.set_xlabel("sliding window W")
-    axes.set_ylabel("normalized score (%), mean with 95% CI")
-    axes.set_title(f"{BENCHMARKS[benchmark]}: ULTHO over the (c, W) grid", fontsize=11)
-    axes.legend(loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=len(cs) + 1, frameon=False)
+    figure, panels = env_panels(len(envs), width=5.0, height=3.6)
+    empty = []
+    for panel, env_id in zip(panels, envs):
+        here = [r for r in ultho if r.env_id == env_id]
+        points = grid.get((benchmark, env_id), set()) | {(r.c, r.window) for r in here}
+        cs, windows = sorted({c for c, _ in points}), sorted({w for _, w in points})
+        width, labelled = 0.8 / len(cs), set()
+        for i, c in enumerate(cs):
+            for j, window in enumerate(windows):
+                if (c, window) not in points:
+                    continue
+                x = j + (i - (len(cs) - 1) / 2) * width
+                cell = strata_of([r for r in here if r.c == c and r.window == window])
+                if not cell:
+                    empty.append(f"{env_id} (c={c:g}, W={window})")
+                    panel.text(x, 0.5, f"c = {c:g}: no runs", rotation=90, ha="center", va="center", fontsize=8,
+                               color="gray", transform=panel.get_xaxis_transform())
+                    continue
+                point, low, high = (100 * v for v in aggregate_with_interval(cell, "mean", seed, reps))
+                # Points, not bars: the cells often differ by less than a bar's height from zero shows.
+                panel.errorbar(x, point, yerr=[[point - low], [high - point]], color=f"C{i}", capsize=4, marker="o",
+                               linestyle="none", label=None if c in labelled else f"c = {c:g}")
+                labelled.add(c)
+        ppo = strata_of([r for r in runs if r.kind == "ppo" and r.env_id == env_id])
+        if ppo:
+            point, low, high = (100 * v for v in aggregate_with_interval(ppo, "mean", seed, reps))
+            panel.axhline(point, color="black", linestyle="--", label="PPO (fixed settings)")
+            panel.axhspan(low, high, color="black", alpha=0.08, zorder=0)
+        panel.set_xticks(range(len(windows)), [f"W = {w}" for w in windows])
+        panel.set_xlim(-0.5, len(windows) - 0.5)
+        panel.set_title(env_id, fontsize=10)
+        panel.set_ylabel("score (%), mean with 95% CI")
+        panel.legend(loc="lower left", fontsize=7, framealpha=0.8)
+    figure.suptitle(f"{BENCHMARKS[benchmark]}: ULTHO over (c, W), the sliding window W on the x axis", fontsize=11)
     return save(figure, out, f"robustness_{benchmark}.png"), empty
 
 
@@ -582,9 +772,32 @@ def percent(point: float, low: float, high: float) -> str:
     return f"{100 * point:.1f} [{100 * low:.1f}, {100 * high:.1f}]"
 
 
+def number(value: float) -> str:
+    """A raw score in the per-environment tables: three significant digits, at least two decimals."""
+    return f"{value:.2f}" if abs(value) < 100 else f"{value:,.0f}"
+
+
+def mean_with_interval(values: list[float], seed: int, reps: int) -> str:
+    """``mean [low, high] (n)``: a percentile bootstrap interval of the mean over seeds."""
+    if not values:
+        return "–"
+    point, low, high = aggregate_with_interval([np.array(values)], "mean", seed, reps)
+    return f"{number(point)} [{number(low)}, {number(high)}] ({len(values)})"
+
+
 def budget_text(runs: list[Run]) -> str:
     low, high = min(r.budget for r in runs), max(r.budget for r in runs)
     return f"{low:,}" if low == high else f"{low:,}–{high:,}"
+
+
+def per_environment_table(runs: list[Run], methods: list[str], envs: list[str], value, seed: int,
+                          reps: int) -> list[str]:
+    lines = ["| method | " + " | ".join(envs) + " |", "|---|" + "---|" * len(envs)]
+    for label in methods:
+        cells = [mean_with_interval([v for r in runs if r.label == label and r.env_id == env
+                                     and (v := value(r)) is not None], seed, reps) for env in envs]
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return lines + [""]
 
 
 def benchmark_section(study: Study, benchmark: str, args: argparse.Namespace, rows: list[dict]) -> list[str]:
@@ -603,37 +816,59 @@ def benchmark_section(study: Study, benchmark: str, args: argparse.Namespace, ro
         else ["No run has TensorBoard return curves.", ""]
 
     envs = sorted({r.env_id for r in runs})
-    lines += ["### Aggregate scores", "",
-              "| method | games | runs | mean (%) [95% CI] | IQM (%) [95% CI] | budget per run (steps) |",
-              "|---|---|---|---|---|---|"]
-    normalization = NORMALIZATION.get(benchmark, MIN_MAX_OVER_RUNS)
-    for label in methods:
-        members = [r for r in runs if r.label == label]
-        strata = strata_of(members)
-        if not strata:
-            lines.append(f"| {label} | 0 | 0 | – | – | {budget_text(members)} |")
-            continue
-        mean, iqm = (aggregate_with_interval(strata, name, seed, reps) for name in AGGREGATES)
-        lines.append(f"| {label} | {len(strata)} | {sum(map(len, strata))} | {percent(*mean)} | {percent(*iqm)} | "
-                     f"{budget_text(members)} |")
-        rows.append({"benchmark": benchmark, "method": label, "games": len(strata), "runs": sum(map(len, strata)),
-                     "mean": mean[0], "mean_low": mean[1], "mean_high": mean[2], "iqm": iqm[0], "iqm_low": iqm[1],
-                     "iqm_high": iqm[2], "budget_steps_min": min(r.budget for r in members),
-                     "budget_steps_max": max(r.budget for r in members), "normalization": normalization})
-    notes = sorted({f"`{r.path}`: {r.score_note}" for r in runs if r.score_note})
-    lines += ["", f"Score: {normalization}. Mean and IQM (interquartile mean) over all games x seeds, 95% "
-              f"stratified-bootstrap percentile intervals ({reps} resamples of the seeds within each game, "
-              f"seed {seed}). "
-              + ("Relay-ULTHO: one score per relay (its winner's); its budget is the three runs'. "
-                 if any(r.kind == "relay" for r in runs) else "")
-              + "Also in [aggregate.csv](aggregate.csv).", ""] + [f"- {n}" for n in notes] + [""] * bool(notes)
+    lines += ["### Scores per environment", "",
+              f"{'Test score' if benchmark == 'procgen' else 'Final score'}: "
+              + ("mean return on the full level distribution (the paper's Procgen measure). " if benchmark == "procgen"
+                 else "mean return of the last 100 training episodes (the paper's measure). ")
+              + "Each cell: mean over seeds [95% percentile-bootstrap interval] (number of runs), raw returns; "
+              "Relay-ULTHO is scored by its winning run.", ""]
+    lines += per_environment_table(runs, methods, envs, lambda r: r.raw_score, seed, reps)
+    lines += ["Evaluation score: mean return of fresh episodes of the final policy on environment seeds never used "
+              "in training (`summary.json`'s `eval`).", ""]
+    lines += per_environment_table(runs, methods, envs, lambda r: r.eval_score, seed, reps)
 
-    lines += ["### Coverage", "", "Scored runs per environment and method (– = none):", "",
-              "| method | " + " | ".join(envs) + " |", "|---|" + "---|" * len(envs)]
-    for label in methods:
-        counts = Counter(r.env_id for r in runs if r.label == label and r.score is not None)
-        lines.append(f"| {label} | " + " | ".join(str(counts[e]) if counts[e] else "–" for e in envs) + " |")
-    lines.append("")
+    normalization = NORMALIZATION[benchmark]
+    lines += ["### Aggregate scores", "", f"Score: {normalization}. Mean and IQM (interquartile mean) over "
+              f"environments x seeds, 95% stratified-bootstrap percentile intervals ({reps} resamples of the seeds "
+              f"within each environment, seed {seed}). Each table compares only methods with runs on every one of its "
+              "environments. "
+              + ("Relay-ULTHO: one score per relay (its winner's); its budget is the three runs'. "
+                 if any(r.kind == "relay" for r in runs) else "") + "Also in [aggregate.csv](aggregate.csv).", ""]
+    for group_envs, group_methods in coverage_groups(runs, methods):
+        lines += [f"Over {len(group_envs)} environment{'s' * (len(group_envs) > 1)}: {', '.join(group_envs)}.", "",
+                  "| method | environments | runs | mean (%) [95% CI] | IQM (%) [95% CI] | budget per run (steps) |",
+                  "|---|---|---|---|---|---|"]
+        for label in group_methods:
+            members = [r for r in runs if r.label == label]
+            strata = strata_of(members, set(group_envs))
+            mean, iqm = (aggregate_with_interval(strata, name, seed, reps) for name in AGGREGATES)
+            count = sum(map(len, strata))
+            lines.append(f"| {label} | {len(strata)} | {count} | {percent(*mean)} | {percent(*iqm)} | "
+                         f"{budget_text(members)} |")
+            rows.append({"benchmark": benchmark, "method": label, "environments": " ".join(group_envs),
+                         "games": len(strata), "runs": count, "mean": mean[0], "mean_low": mean[1],
+                         "mean_high": mean[2], "iqm": iqm[0], "iqm_low": iqm[1], "iqm_high": iqm[2],
+                         "budget_steps_min": min(r.budget for r in members),
+                         "budget_steps_max": max(r.budget for r in members), "normalization": normalization})
+        lines.append("")
+    notes = sorted({f"`{r.path}`: {r.score_note}" for r in runs if r.score_note})
+    lines += [f"- {n}" for n in notes] + [""] * bool(notes)
+
+    threshold, window = args.solve_threshold, args.solve_window
+    efficiency = efficiency_figure(runs, benchmark, colors, threshold, window, out)
+    if efficiency:
+        lines += ["### Sample efficiency", "",
+                  f"Steps to solve: the first environment step at which a run's running score (the mean of its last "
+                  f"{window} logged training returns, each the mean return of the episodes that ended in one "
+                  f"iteration, on the scale above) reaches {threshold:g}. Each cell: the mean over runs, a run that "
+                  "never reached it counted with its whole budget (then the mean is a lower bound, marked ≥), and "
+                  "(runs that reached it / runs). Relay-ULTHO: its winning run, from that run's start.", "",
+                  "| method | " + " | ".join(envs) + " | all |", "|---|" + "---|" * (len(envs) + 1)]
+        for label in methods:
+            members = [r for r in runs if r.label == label]
+            cells = [efficiency_of([r for r in members if r.env_id == env], threshold, window).text() for env in envs]
+            lines.append(f"| {label} | " + " | ".join(cells) + f" | {efficiency_of(members, threshold, window).text()} |")
+        lines += ["", f"![sample efficiency]({efficiency})", ""]
 
     ultho_methods = [m for m in methods if any(r.label == m and r.kind == "ultho" for r in runs)]
     if ultho_methods:
@@ -646,6 +881,7 @@ def benchmark_section(study: Study, benchmark: str, args: argparse.Namespace, ro
         members = [r for r in runs if r.label == label]
         drawn = decision_figures(members, f"{BENCHMARKS[benchmark]} {label}", out, slug(f"{benchmark}_{label}"))
         lines += [f"#### {label}", ""] + [f"![{what}]({name})" for what, name in drawn] + [""]
+        lines += selection_table(members) + [""]
         if not args.per_run:
             continue
         # Named by the path below the directory all runs share, so names stay short and distinct.
@@ -654,13 +890,32 @@ def benchmark_section(study: Study, benchmark: str, args: argparse.Namespace, ro
                    for r in sorted(members, key=lambda r: (r.env_id, r.seed))]
         lines += ["Per run: " + ", ".join(f"[{r.env_id} seed {r.seed}]({name})" for r, name in per_run if name), ""]
 
-    robustness, empty = robustness_figure(runs, benchmark, study.grid[benchmark], seed, reps, out)
+    robustness, empty = robustness_figure(runs, benchmark, study.grid, seed, reps, out)
     if robustness:
         lines += ["### Robustness over (c, W)", "", f"![robustness]({robustness})", "",
-                  "Mean normalized score of ULTHO at each (c, W) with its 95% stratified-bootstrap interval; the "
-                  "dashed line and grey band are fixed-settings PPO."
+                  "Mean score of ULTHO at each (c, W) of each environment with its 95% percentile-bootstrap interval "
+                  "over seeds; the dashed line and grey band are fixed-settings PPO on that environment."
                   + (f" No scored ULTHO runs at {', '.join(empty)}." if empty else ""), ""]
     return lines
+
+
+def selection_table(runs: list[Run]) -> list[str]:
+    """The credited selections of each value (summary.json), pooled over the runs, and how many runs credited
+    every value exactly equally often (a strict rotation: the bandit's choices did not depend on its credits)."""
+    counted = [r for r in runs if r.value_selections]
+    if not counted:
+        return []
+    space = counted[0].search_space
+    pooled = {cluster: np.sum([r.value_selections[cluster] for r in counted], axis=0) for cluster in space}
+    total = sum(counts.sum() for counts in pooled.values())
+    rotations = sum(len({n for counts in r.value_selections.values() for n in counts}) == 1 for r in counted)
+    lines = ["| cluster | credited selections (share) | per value |", "|---|---|---|"]
+    for cluster, values in space.items():
+        counts = pooled[cluster]
+        lines.append(f"| {cluster} | {counts.sum():,} ({100 * counts.sum() / total:.1f}%) | "
+                     + ", ".join(f"{v:g}: {n:,}" for v, n in zip(values, counts)) + " |")
+    return lines + ["", f"Pooled over {len(counted)} runs. Runs that credited every value exactly equally often "
+                        f"(a strict rotation): {rotations} of {len(counted)}."]
 
 
 def write_report(study: Study, args: argparse.Namespace) -> None:
@@ -668,7 +923,8 @@ def write_report(study: Study, args: argparse.Namespace) -> None:
     os.makedirs(out, exist_ok=True)
     benchmarks = [b for b in BENCHMARKS if any(r.benchmark == b for r in study.runs)]
     lines = ["# ULTHO report", "",
-             f"`python ultho_report.py {' '.join(args.paths)} --out {out} --seed {args.seed} --reps {args.reps}`: "
+             f"`python ultho_report.py {' '.join(args.paths)} --out {out} --seed {args.seed} --reps {args.reps}"
+             f"{'' if args.per_run else ' --no-per-run'}`: "
              f"{len(study.runs)} runs ({', '.join(BENCHMARKS[b] for b in benchmarks)}).", ""]
     rows: list[dict] = []
     for benchmark in benchmarks:
@@ -677,13 +933,72 @@ def write_report(study: Study, args: argparse.Namespace) -> None:
         lines += ["## Missing and skipped", ""] + [f"- {m}" for m in study.missing]
         lines += [f"- {w}" for w in study.warnings] + [""]
     with open(os.path.join(out, "aggregate.csv"), "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=["benchmark", "method", "games", "runs", "mean", "mean_low",
-                                               "mean_high", "iqm", "iqm_low", "iqm_high", "budget_steps_min",
-                                               "budget_steps_max", "normalization"])
+        writer = csv.DictWriter(f, fieldnames=["benchmark", "method", "environments", "games", "runs", "mean",
+                                               "mean_low", "mean_high", "iqm", "iqm_low", "iqm_high",
+                                               "budget_steps_min", "budget_steps_max", "normalization"])
         writer.writeheader()
         writer.writerows(rows)
     with open(os.path.join(out, "report.md"), "w") as f:
         f.write("\n".join(lines) + "\n")
+
+
+# ---------------------------------------------------------------------- compact export
+def export_data(study: Study, roots: list[str], out: str) -> int:
+    """Copies what the report read into ``out``: JSON files as they are, each run's curves as scalars.csv.
+
+    Each root keeps its own folder (its base name) with its layout below, so sweep.json's and relay.json's
+    relative paths still hold; a relay's absolute ``full_run`` inside a root becomes relative. Returns the
+    number of bytes written.
+    """
+    roots = [os.path.realpath(r) for r in roots]
+    names = [os.path.basename(r.rstrip(os.sep)) or "root" for r in roots]
+    if len(set(names)) != len(names):
+        raise ValueError(f"--export-data: the paths {', '.join(roots)} share a folder name")
+
+    def target(path: str) -> str | None:
+        real = os.path.realpath(path)
+        for root, name in zip(roots, names):
+            if real == root or real.startswith(root + os.sep):
+                return os.path.normpath(os.path.join(out, name, os.path.relpath(real, root)))
+        return None
+
+    written = 0
+    for path in dict.fromkeys(study.files):
+        destination = target(path)
+        if destination is None:
+            continue
+        os.makedirs(os.path.dirname(destination), exist_ok=True)
+        if os.path.basename(path) == "relay.json":
+            with open(path) as f:
+                relay = json.load(f)
+            if os.path.isabs(relay.get("full_run") or "") and (full := target(relay["full_run"])):
+                relay["full_run"] = os.path.relpath(full, os.path.dirname(destination))
+            with open(destination, "w") as f:
+                json.dump(relay, f, indent=1)
+        else:
+            shutil.copyfile(path, destination)
+        written += os.path.getsize(destination)
+        run_dir = os.path.dirname(path)
+        if os.path.basename(path) == "summary.json" and (series := study.read_scalars(run_dir)):
+            written += write_scalars_csv(series, os.path.join(os.path.dirname(destination), SCALARS_CSV))
+    return written
+
+
+def write_scalars_csv(series: dict[str, np.ndarray], path: str) -> int:
+    """One row per logged step, one column per tag; float32 values (TensorBoard's) written to round-trip."""
+    tags = sorted(series)
+    steps = sorted({int(step) for tag in tags for step in series[tag][:, 0]})
+    position = {step: i for i, step in enumerate(steps)}
+    table = [[""] * len(tags) for _ in steps]
+    for k, tag in enumerate(tags):
+        for step, value in series[tag]:
+            table[position[int(step)]][k] = "nan" if math.isnan(value) else f"{np.float32(value)!r}".removeprefix(
+                "np.float32(").removesuffix(")")
+    with open(path, "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["step", *tags])
+        writer.writerows([[step, *row] for step, row in zip(steps, table)])
+    return os.path.getsize(path)
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -695,8 +1010,9 @@ def main(argv: list[str] | None = None) -> None:
     parser = OneLineParser(
         prog="ultho_report.py", description=__doc__.replace("``", "").split("\n    python")[0],
         epilog="examples:\n  python ultho_report.py runs/ --out report/      # then open report/report.md\n"
-               "  python ultho_report.py sweeps/procgen/ runs/my_run --out report/ --seed 1 --no-per-run\n\n"
-               "Unreadable or missing run files are named in one warning each on stderr and skipped.",
+               "  python ultho_report.py sweeps/procgen/ runs/my_run --out report/ --seed 1 --no-per-run\n"
+               "  python ultho_report.py runs/sweep-minigrid --out results/minigrid --export-data results/minigrid/data\n"
+               "\nUnreadable or missing run files are named in one warning each on stderr and skipped.",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("paths", nargs="+", metavar="PATH",
                         help="run directories, relay directories, sweep directories, or folders holding them")
@@ -707,12 +1023,29 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--reps", type=int, default=50_000, help="bootstrap resamples (default: 50000, as rliable)")
     parser.add_argument("--no-per-run", dest="per_run", action="store_false", help="skip the per-run decision "
                         "figures (one PNG per ULTHO run, about a second each; the aggregated ones stay)")
+    parser.add_argument("--solve-threshold", type=float, default=0.9, metavar="SCORE",
+                        help="the score (on the aggregate table's scale) a run must reach to count as solved in the "
+                             "sample-efficiency table (default: 0.9, e.g. MiniGrid return 0.9)")
+    parser.add_argument("--solve-window", type=int, default=5, metavar="N",
+                        help="logged iterations the running score averages (default: 5)")
+    parser.add_argument("--export-data", metavar="DIR", help="also write a compact copy of the study to DIR "
+                        "(summaries, relay and sweep indexes, each run's curves as scalars.csv), enough to redraw "
+                        "the report")
     args = parser.parse_args(argv)
     for path in args.paths:
         if not os.path.exists(path):
             parser.error(f"no such path: {path}")
     if args.reps < 1:
         parser.error(f"--reps must be positive, got {args.reps}")
+    if args.solve_window < 1:
+        parser.error(f"--solve-window must be positive, got {args.solve_window}")
+    if not math.isfinite(args.solve_threshold):
+        parser.error(f"--solve-threshold must be a finite number, got {args.solve_threshold}")
+    if args.export_data and os.path.exists(args.export_data) and os.listdir(args.export_data):
+        parser.error(f"--export-data {args.export_data}: the folder exists and is not empty")
+    names = [os.path.basename(os.path.realpath(p).rstrip(os.sep)) for p in args.paths]
+    if args.export_data and len(set(names)) != len(names):
+        parser.error(f"--export-data: the paths {' '.join(args.paths)} share a folder name")
 
     logger = logging.getLogger("tensorboard")
     logger.setLevel(logging.DEBUG)
@@ -727,6 +1060,9 @@ def main(argv: list[str] | None = None) -> None:
     study.label_methods()
     write_report(study, args)
     print(f"{PROG}: wrote {os.path.join(args.out, 'report.md')}", file=sys.stderr)
+    if args.export_data:
+        size = export_data(study, args.paths, args.export_data)
+        print(f"{PROG}: wrote {size / 1e6:.1f} MB of study data to {args.export_data}", file=sys.stderr)
 
 
 if __name__ == "__main__":

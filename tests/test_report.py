@@ -4,12 +4,14 @@ import csv
 import json
 import re
 import shutil
+from collections import defaultdict
 
 import numpy as np
 import pytest
 
-from helpers import run, run_concurrently, summary
-from ultho_report import PROCGEN_EASY, aggregate_with_interval, fixed_normalization, game_of, raw_score
+from helpers import run, run_concurrently, scalars, summary
+from ultho_report import (PROCGEN_EASY, PYBULLET_REFERENCE, Efficiency, aggregate_with_interval, coverage_groups,
+                          game_of, normalized, raw_score, steps_to_threshold)
 
 REPORT = "ultho_report.py"
 SCRIPT = "ppo_ultho_minigrid.py"
@@ -21,6 +23,7 @@ TINY = ["--num-envs", "4", "--num-steps", "64", "--total-timesteps", "1024", "--
         "--eval-episodes", "2", "--quiet"]
 SPACE = ["--ultho-clusters", "learning_rate", "minibatch_size=64,128,256", "vf_coef"]
 METHODS = ["PPO", "ULTHO (c=1, W=50)", "ULTHO (c=5, W=10)", "Relay-ULTHO (c=5, W=10)"]
+SOLVE_THRESHOLD = 0.6  # a running mean of 2 logged returns: some tiny runs reach it, others do not (checked)
 
 
 def sweep_entry(name, env_id, method, c, window, seed, path, status="done", error=None):
@@ -77,7 +80,7 @@ def study(tmp_path_factory):
 def reports(study, tmp_path_factory):
     """The full report, and the same --seed again without the per-run figures, both at once."""
     out = tmp_path_factory.mktemp("reports")
-    common = [str(study), "--seed", "7", "--reps", "5000"]
+    common = [str(study), "--seed", "7", "--reps", "5000", "--solve-threshold", str(SOLVE_THRESHOLD), "--solve-window", "2"]
     results = run_concurrently(REPORT, [common + ["--out", str(out / "a")],
                                         common + ["--out", str(out / "b"), "--no-per-run"]])
     for result in results:
@@ -110,25 +113,105 @@ def test_every_figure_exists_and_report_md_links_it(reports):
 def test_report_says_what_is_missing(reports):
     report = (reports["a"] / "report.md").read_text()
     assert "sweep run `relay_2` (relay, MiniGrid-Empty-5x5-v0, seed 2) is failed: exit status 1" in report
-    assert "No scored ULTHO runs at (c=1, W=10), (c=5, W=50)." in report
-    # Coverage: the single relay has a run on one environment only.
-    assert "| Relay-ULTHO (c=5, W=10) | 1 | – |" in report
+    assert (f"No scored ULTHO runs at {ENVS[0]} (c=1, W=10), {ENVS[0]} (c=5, W=50), {ENVS[1]} (c=1, W=10), "
+            f"{ENVS[1]} (c=5, W=50).") in report
+    # The single relay has a run on the first environment only: its own aggregate table, over that one.
+    assert f"Over 2 environments: {ENVS[0]}, {ENVS[1]}." in report and f"Over 1 environment: {ENVS[0]}." in report
+    relay_row = next(line for line in report.splitlines() if line.startswith("| Relay-ULTHO (c=5, W=10) | "))
+    assert relay_row.endswith(" (1) | – |")
 
 
-def test_aggregate_table_matches_min_max_scores_from_the_summaries(study, reports):
-    rows = table(reports["a"])
-    assert list(rows) == METHODS
+def raw_scores(study) -> list[tuple[str, str, float, float | None]]:
+    """(environment, method, final score, evaluation score) of every scored entry, from the summaries."""
     summaries = [summary(str(d)) for d in (study / "runs").iterdir()]
     relay = json.loads((study / "relays" / "relay_1" / "relay.json").read_text())
-    raw = [(s["env_id"], "PPO" if not s["ultho"] else f"ULTHO (c={s['bandit']['c']:g}, W={s['bandit']['window']})",
-            s["final_score"]) for s in summaries] + [(ENVS[0], METHODS[3], relay["final_score"])]
-    span = {env: (min(x for e, _, x in raw if e == env), max(x for e, _, x in raw if e == env)) for env in ENVS}
+    winner = summary(str(study / "relays" / "relay_1" / relay["winner_run"]))
+    return [(s["env_id"], "PPO" if not s["ultho"] else f"ULTHO (c={s['bandit']['c']:g}, W={s['bandit']['window']})",
+             s["final_score"], s["eval"]["mean_return"]) for s in summaries] + \
+        [(ENVS[0], METHODS[3], relay["final_score"], winner["eval"]["mean_return"])]
+
+
+def test_aggregate_table_has_minigrid_returns_as_they_are_over_the_environments_each_method_covers(study, reports):
+    rows = table(reports["a"])
+    assert list(rows) == METHODS
+    raw = raw_scores(study)
     for method in METHODS:
-        scores = [(x - span[e][0]) / (span[e][1] - span[e][0]) for e, m, x in raw if m == method]
+        scores = [x for _, m, x, _ in raw if m == method]
         assert float(rows[method]["mean"]) == pytest.approx(np.mean(scores))
         assert int(rows[method]["runs"]) == len(scores)
+    assert rows["PPO"]["environments"] == " ".join(ENVS) and rows[METHODS[3]]["environments"] == ENVS[0]
     assert rows["PPO"]["budget_steps_min"] == rows["PPO"]["budget_steps_max"] == "1024"
     assert rows[METHODS[3]]["budget_steps_min"] == "3072"  # three runs
+
+
+def test_a_score_does_not_depend_on_the_other_runs_present(study, reports, tmp_path):
+    """Only the PPO runs: PPO's aggregate is what it was beside ULTHO and Relay-ULTHO."""
+    alone = tmp_path / "ppo"
+    for run_dir in (study / "runs").iterdir():
+        if "__ppo__" in run_dir.name:
+            shutil.copytree(run_dir, alone / run_dir.name)
+    result = run(REPORT, str(alone), "--out", str(tmp_path / "out"), "--seed", "7", "--reps", "5000")
+    assert result.returncode == 0, result.stderr
+    assert table(tmp_path / "out")["PPO"] == table(reports["a"])["PPO"]
+
+
+def test_per_environment_tables_hold_each_methods_mean_over_seeds(study, reports):
+    report = (reports["a"] / "report.md").read_text()
+    final_table, eval_table = [block for block in report.split("\n\n") if block.startswith("| method | " + ENVS[0])][:2]
+    raw = raw_scores(study)
+    for block, column in ((final_table, 2), (eval_table, 3)):
+        rows = {line.split(" | ")[0].removeprefix("| "): line.split(" | ")[1:] for line in block.splitlines()[2:]}
+        for method in METHODS:
+            for k, env in enumerate(ENVS):
+                values = [entry[column] for entry in raw if entry[0] == env and entry[1] == method]
+                cell = rows[method][k].removesuffix(" |")
+                if not values:
+                    assert cell == "–"
+                    continue
+                assert cell.startswith(f"{np.mean(values):.2f} [") and cell.endswith(f"] ({len(values)})"), cell
+
+
+def test_sample_efficiency_table_from_the_real_curves(study, reports):
+    """Recomputed by hand from each run's TensorBoard return curve: running mean of 2, first step >= threshold."""
+    report = (reports["a"] / "report.md").read_text()
+    block = report.split("### Sample efficiency")[1].split("\n\n")[2]
+    rows = {line.split(" | ")[0].removeprefix("| "): line.split(" | ")[1:] for line in block.splitlines()[2:]}
+    expected = defaultdict(list)
+    for run_dir in sorted((study / "runs").iterdir()):
+        s = summary(str(run_dir))
+        label = "PPO" if not s["ultho"] else f"ULTHO (c={s['bandit']['c']:g}, W={s['bandit']['window']})"
+        curve = scalars(str(run_dir))["charts/episodic_return"]
+        running = [(curve[i - 1][1] + curve[i][1]) / 2 for i in range(1, len(curve))]
+        first = next((curve[i + 1][0] for i, x in enumerate(running) if x >= SOLVE_THRESHOLD), None)
+        expected[(label, s["env_id"])].append((first, s["global_step"]))
+    for (label, env), found in expected.items():
+        steps = [budget if first is None else first for first, budget in found]
+        reached = sum(first is not None for first, _ in found)
+        cell = rows[label][ENVS.index(env)]
+        assert cell == Efficiency([f for f, _ in found], [b for _, b in found]).text()
+        assert cell.endswith(f"({reached}/{len(found)})") and (cell.startswith("≥ ") == (reached < len(found)))
+        assert Efficiency([f for f, _ in found], [b for _, b in found]).censored_mean == pytest.approx(np.mean(steps))
+    assert any(first is not None for found in expected.values() for first, _ in found), "threshold never reached"
+    assert any(first is None for found in expected.values() for first, _ in found), "threshold always reached"
+
+
+def test_report_redraws_from_the_exported_data(study, reports, tmp_path):
+    """--export-data keeps summaries, indexes and curves; the report drawn from it equals the original."""
+    data, out = tmp_path / "data", tmp_path / "redrawn"
+    common = ["--seed", "7", "--reps", "5000", "--solve-threshold", str(SOLVE_THRESHOLD), "--solve-window", "2"]
+    result = run(REPORT, str(study), "--out", str(tmp_path / "first"), "--export-data", str(data), *common)
+    assert result.returncode == 0, result.stderr
+    assert not list(data.rglob("events.out.tfevents*")) and not list(data.rglob("checkpoint.pt"))
+    assert len(list(data.rglob("scalars.csv"))) == len(list(study.rglob("summary.json")))
+    result = run(REPORT, str(data / study.name), "--out", str(out), *common)
+    assert result.returncode == 0 and "warning" not in result.stderr, result.stderr
+    assert table(out) == table(reports["a"])
+
+    def body(path):
+        return (path / "report.md").read_text().split("\n", 3)[3].replace(str(data / study.name), str(study))
+
+    assert body(out) == body(reports["a"])
+    assert {p.name for p in out.rglob("*.png")} == {p.name for p in reports["a"].rglob("*.png")}
 
 
 def test_each_interval_contains_its_point_estimate(reports):
@@ -203,11 +286,11 @@ def test_procgen_uses_the_test_score_with_the_easy_constants():
               "train_score": 30.0, "test_score": 20.5}
     raw, note = raw_score(shaped, "procgen")
     assert (raw, note) == (20.5, None)
-    assert fixed_normalization("procgen", shaped["env_id"], raw) == pytest.approx(0.5)  # (20.5 - 1) / (40 - 1)
+    assert normalized("procgen", shaped["env_id"], raw) == pytest.approx(0.5)  # (20.5 - 1) / (40 - 1)
     raw, note = raw_score(shaped | {"test_score": None}, "procgen")
     assert raw == 30.0 and "training score" in note
-    assert fixed_normalization("procgen", "starpilot", 64) == pytest.approx(1.0)
-    assert fixed_normalization("procgen", "procgen:procgen-fruitbot-v0", -1.5) == pytest.approx(0.0)
+    assert normalized("procgen", "starpilot", 64) == pytest.approx(1.0)
+    assert normalized("procgen", "procgen:procgen-fruitbot-v0", -1.5) == pytest.approx(0.0)
     assert game_of("procgen-miner-v0", PROCGEN_EASY) == "miner" and game_of("procgen-maze-v0", PROCGEN_EASY) == "maze"
 
 
@@ -215,10 +298,10 @@ def test_ale_is_human_normalized_and_unknown_games_are_not_scored():
     shaped = {"script": "ppo_ultho_atari", "env_id": "ALE/Qbert-v5", "final_score": 6809.45,
               "human_normalized_score": 0.5}
     raw, _ = raw_score(shaped, "atari")
-    assert fixed_normalization("atari", shaped["env_id"], raw) == pytest.approx(0.5)  # midway random 163.9, human 13455
-    assert fixed_normalization("atari", "BattleZoneNoFrameskip-v4", 37187.5) == pytest.approx(1.0)
-    assert fixed_normalization("atari", "ALE/DoubleDunk-v5", -18.6) == pytest.approx(0.0)
-    assert fixed_normalization("atari", "ALE/Pong-v5", 21.0) is None
+    assert normalized("atari", shaped["env_id"], raw) == pytest.approx(0.5)  # midway random 163.9, human 13455
+    assert normalized("atari", "BattleZoneNoFrameskip-v4", 37187.5) == pytest.approx(1.0)
+    assert normalized("atari", "ALE/DoubleDunk-v5", -18.6) == pytest.approx(0.0)
+    assert normalized("atari", "ALE/Pong-v5", 21.0) is None
 
 
 def test_mean_and_iqm_of_a_known_score_matrix():
@@ -242,3 +325,44 @@ def test_bootstrap_is_stratified_by_game_and_seeded():
         assert low <= point <= high and low < high
         assert aggregate_with_interval(strata, name, 1, 2000) == (point, low, high)
         assert aggregate_with_interval(strata, name, 2, 2000)[1:] != (low, high)
+
+
+def test_pybullet_and_minigrid_use_fixed_references():
+    low, high = PYBULLET_REFERENCE["HalfCheetahBulletEnv"]
+    assert normalized("pybullet", "HalfCheetahBulletEnv-v0", high) == pytest.approx(1.0)
+    assert normalized("pybullet", "HalfCheetahBulletEnv-v0", (low + high) / 2) == pytest.approx(0.5)
+    assert normalized("pybullet", "InvertedPendulumBulletEnv-v0", 1000.0) is None
+    assert normalized("minigrid", "MiniGrid-DoorKey-6x6-v0", 0.93) == pytest.approx(0.93)
+
+
+def test_steps_to_threshold_by_hand():
+    # Running mean of 3 logged returns: (0.2, 0.5, 0.8) at step 30 = 0.5; (0.5, 0.8, 0.95) at 40 = 0.75;
+    # (0.8, 0.95, 1.0) at 50 = 0.9167 -> first reaches 0.9 at step 50, 0.7 at step 40, never 0.95.
+    curve = np.array([[10, 0.2], [20, 0.5], [30, 0.8], [40, 0.95], [50, 1.0]])
+    assert steps_to_threshold(curve, "minigrid", "MiniGrid-Empty-5x5-v0", 0.9, 3) == 50
+    assert steps_to_threshold(curve, "minigrid", "MiniGrid-Empty-5x5-v0", 0.7, 3) == 40
+    assert steps_to_threshold(curve, "minigrid", "MiniGrid-Empty-5x5-v0", 0.95, 3) is None
+    assert steps_to_threshold(curve, "minigrid", "MiniGrid-Empty-5x5-v0", 0.8, 1) == 30
+    # On the fixed scale: Procgen coinrun (5, 10), so a return of 9.5 is 0.9.
+    assert steps_to_threshold(np.array([[1, 9.0], [2, 9.5]]), "procgen", "coinrun", 0.9, 1) == 2
+    found = Efficiency([50, None, 30], [100, 100, 100])
+    assert (found.reached, found.censored_mean, found.text()) == (2, 60.0, "≥ 60 (2/3)")
+    assert Efficiency([10, 20], [100, 100]).text() == "15 (2/2)"
+    assert Efficiency([96_938.7, 120_000], [499_712] * 2).text() == "108k (2/2)"
+    assert Efficiency([1_500_000, 1_000_000], [2_000_000] * 2).text() == "1.25M (2/2)"
+    assert Efficiency([12_345, 54_321], [499_712] * 2).text() == "33,333 (2/2)"
+
+
+def test_methods_are_aggregated_only_over_the_environments_they_all_cover():
+    from ultho_report import Run
+
+    def entry(label, env):
+        run = Run("p", "minigrid", env, "ppo", None, None, 1, 1, 0.5, score=0.5)
+        run.label = label
+        return run
+
+    runs = [entry("A", "x"), entry("A", "y"), entry("B", "y"), entry("B", "x"), entry("C", "x"), entry("D", "z")]
+    runs.append(entry("E", "x"))
+    runs[-1].score = None  # no scored run: in no aggregate
+    assert coverage_groups(runs, ["A", "B", "C", "D", "E"]) == [(["x", "y"], ["A", "B"]), (["x"], ["C"]),
+                                                                 (["z"], ["D"])]
