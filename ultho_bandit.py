@@ -1,16 +1,26 @@
-"""The ULTHO hierarchical UCB bandit (Yuan et al., ICCV 2025, Algorithm 1, Eqs. 4-7).
+"""The ULTHO hierarchical bandit (Yuan et al., ICCV 2025, Algorithm 1, Eqs. 4-7), and opt-in variants of it.
 
 A search space is an ordered mapping ``cluster name -> candidate values``; the cluster name is the PPO
 setting the value overrides (``args.<name> = value``). Every iteration a training loop calls
 :meth:`ULTHO.select` once and, after the update that used the chosen value, credits it with
 :meth:`ULTHO.update`. Selections and credits strictly alternate.
 
-Conventions this module fixes (see ``ULTHO_SPEC.md``, "The bandit"):
+Conventions this module fixes (docs/bandit.md):
 
 * every cluster and every value starts with N = 1 and U = 0 and keeps a FIFO window of its last W credits;
 * selection number i (1, 2, 3, ...) uses ``ln(i)`` in the bonus at *both* levels (Eqs. 4 and 5);
 * ties go to the earliest cluster / value, so the first selection is the first cluster's first value;
 * U is the mean of the credits in the window (Eq. 6), of those present while fewer than W.
+
+The defaults are the paper's algorithm: ``strategy="ucb"``, ``credit="level"``, ``scale="none"``. The variants
+(docs/strategies.md) keep the same two-level structure and the same arm bookkeeping:
+
+* ``credit="improvement"`` credits a choice with the utility minus the one measured before it took effect
+  (``select(before=...)``), not with its level, which rises during training whatever was chosen;
+* ``scale="running"`` divides every utility by the running standard deviation of all credits so far, so that
+  c (and the Thompson-sampling and Exp3 arithmetic) means the same whatever the credits' units;
+* ``strategy="ts"``: Gaussian Thompson sampling on each arm's window; ``strategy="exp3"``: Exp3 with weights
+  discounted by 1 - 1/W, on credits mapped to [0, 1]. Both draw from a seeded generator kept in the state.
 
 Pure Python: one ``select()`` + ``update()`` pair over 4 clusters x 3 values costs a few microseconds
 (``benchmarks/bench_bandit.py``).
@@ -19,13 +29,20 @@ Pure Python: one ``select()`` + ``update()`` pair over 4 clusters x 3 values cos
 from __future__ import annotations
 
 import math
+import random
 from collections import deque
-from typing import Any, Mapping, Sequence
+from typing import Any, Literal, Mapping, Sequence
 
 Number = int | float
 SearchSpace = dict[str, list[Number]]
+Strategy = Literal["ucb", "ts", "exp3"]
+Credit = Literal["level", "improvement"]
+Scale = Literal["none", "running"]
 
-STATE_FORMAT = 1
+STRATEGIES: tuple[str, ...] = ("ucb", "ts", "exp3")
+CREDITS: tuple[str, ...] = ("level", "improvement")
+SCALES: tuple[str, ...] = ("none", "running")
+STATE_FORMAT = 2
 
 
 def format_value(value: Number) -> str:
@@ -44,6 +61,14 @@ def _as_number(value: Any, where: str) -> Number:
     if isinstance(value, float) and not math.isfinite(value):
         raise ValueError(f"{where}: candidate value {value!r} is not finite")
     return value
+
+
+def _as_finite(value: Any, what: str) -> float:
+    if hasattr(value, "item") and not isinstance(value, (int, float)):
+        value = value.item()
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError(f"{what} {value!r} is not a finite number")
+    return float(value)
 
 
 def validate_search_space(search_space: Mapping[str, Sequence[Any]]) -> SearchSpace:
@@ -90,14 +115,15 @@ def clusters_of_interest(selections: Mapping[str, int]) -> tuple[str, str]:
 
 
 class _Arm:
-    """One arm (a cluster or a value): its count N and the FIFO window behind its utility U."""
+    """One arm (a cluster or a value): its count N, the FIFO window behind its utility U, and Exp3's estimate."""
 
-    __slots__ = ("count", "credits", "utility")
+    __slots__ = ("count", "credits", "utility", "exp3_sum")
 
     def __init__(self, window: int) -> None:
         self.count = 1  # N starts at 1 (Algorithm 1, line 3)
         self.credits: deque[float] = deque(maxlen=window)
         self.utility = 0.0  # U starts at 0
+        self.exp3_sum = 0.0  # Exp3 only: S, the discounted estimate of the arm's summed rewards
 
     def credit(self, utility: float) -> None:
         """Eq. 6: push the credit into the window, U = window mean, N += 1."""
@@ -109,67 +135,115 @@ class _Arm:
         """The exploration term ``c * sqrt(ln(i) / N)`` of Eqs. 4 and 5."""
         return c * math.sqrt(log_i / self.count)
 
+    def posterior_std(self) -> float:
+        """Thompson sampling's spread of the mean, in credit-scale units: 1 / sqrt(1 + credits in the window)
+        (a unit-variance Gaussian model with one prior pseudo-observation at U = 0)."""
+        return 1.0 / math.sqrt(1 + len(self.credits))
 
-def _argmax_ucb(arms: Sequence[_Arm], c: float, log_i: float) -> int:
-    """Index of the arm with the highest U + bonus; the strict ``>`` gives ties to the earliest arm."""
-    best, best_bound = 0, -math.inf
-    for index, arm in enumerate(arms):
-        bound = arm.utility + arm.bonus(c, log_i)
-        if bound > best_bound:
-            best, best_bound = index, bound
+
+def _first_best(scores: Sequence[float]) -> int:
+    """Index of the highest score; the strict ``>`` gives ties to the earliest arm."""
+    best, best_score = 0, -math.inf
+    for index, score in enumerate(scores):
+        if score > best_score:
+            best, best_score = index, score
     return best
 
 
 class ULTHO:
-    """Hierarchical UCB over clusters of hyperparameter values (Algorithm 1).
+    """Hierarchical bandit over clusters of hyperparameter values (Algorithm 1), UCB by default.
 
     Args:
         search_space: ordered ``{cluster name: [candidate values]}``; names are the settings to override.
-        c: exploration coefficient of Eqs. 4 and 5 (finite, >= 0). The paper's grid is {1, 5}.
+        c: exploration coefficient of Eqs. 4 and 5 (finite, >= 0); UCB only. The paper's grid is {1, 5}.
         window: W, the number of most recent credits averaged into a utility (Eq. 6). Paper: {10, 50, 100}.
+            Exp3 discounts its weights by 1 - 1/W per update instead, so W is the memory of every strategy.
+        strategy: ``"ucb"`` (Eqs. 4-5, the paper's), ``"ts"`` (Gaussian Thompson sampling) or ``"exp3"``.
+        credit: ``"level"`` (the utility as measured, the paper's) or ``"improvement"`` (the utility minus the
+            one given to :meth:`select` as ``before``).
+        scale: ``"none"`` (the paper's) or ``"running"``: utilities divided by the running standard deviation
+            of all credits so far (utilities count as 0 until two credits differ).
+        seed: seed of the generator Thompson sampling and Exp3 draw from (UCB draws nothing).
+        exp3_eta: Exp3's learning rate eta (> 0): its probabilities are softmax(eta * S).
 
     Raises:
-        ValueError: an invalid search space, c or window.
+        ValueError: an invalid search space or option.
     """
 
-    def __init__(self, search_space: Mapping[str, Sequence[Any]], c: float = 5.0, window: int = 10) -> None:
+    def __init__(self, search_space: Mapping[str, Sequence[Any]], c: float = 5.0, window: int = 10,
+                 strategy: Strategy = "ucb", credit: Credit = "level", scale: Scale = "none", seed: int = 0,
+                 exp3_eta: float = 0.5) -> None:
         self.search_space = validate_search_space(search_space)
         if isinstance(c, bool) or not isinstance(c, (int, float)) or not math.isfinite(c) or c < 0:
             raise ValueError(f"exploration coefficient c={c!r} must be a finite number >= 0")
         if isinstance(window, bool) or not isinstance(window, int) or window < 1:
             raise ValueError(f"window={window!r} must be an integer >= 1")
+        for name, given, allowed in (("strategy", strategy, STRATEGIES), ("credit", credit, CREDITS),
+                                     ("scale", scale, SCALES)):
+            if given not in allowed:
+                raise ValueError(f"{name}={given!r} is not one of {', '.join(allowed)}")
+        if isinstance(seed, bool) or not isinstance(seed, int):
+            raise ValueError(f"seed={seed!r} must be an integer")
+        if isinstance(exp3_eta, bool) or not isinstance(exp3_eta, (int, float)) or not (
+                math.isfinite(exp3_eta) and exp3_eta > 0):
+            raise ValueError(f"exp3_eta={exp3_eta!r} must be a finite number > 0")
         self.c = float(c)
         self.window = window
+        self.strategy: Strategy = strategy
+        self.credit_mode: Credit = credit
+        self.scale_mode: Scale = scale
+        self.seed = seed
+        self.exp3_eta = float(exp3_eta)
         self.cluster_names = list(self.search_space)
         self._clusters = [_Arm(window) for _ in self.cluster_names]
         self._values = [[_Arm(window) for _ in vals] for vals in self.search_space.values()]
         self._num_selections = 0
         self._pending: tuple[int, int] | None = None
         self._last: tuple[int, int] | None = None
+        self._pending_before: float | None = None
+        self._pending_probabilities = (1.0, 1.0)  # of the pending cluster and value, for Exp3's estimate
+        self._last_credit = math.nan
+        self._rng = random.Random(seed)
+        # Welford's running count, mean and sum of squared deviations of every credit so far.
+        self._stats = [0, 0.0, 0.0]
 
     # ------------------------------------------------------------------ the algorithm
-    def select(self) -> tuple[str, Number]:
-        """Selection number i: a cluster by Eq. 4, then a value inside it by Eq. 5 (same global i).
+    def select(self, before: float | None = None) -> tuple[str, Number]:
+        """Selection number i: a cluster, then a value inside it (UCB: Eqs. 4 and 5 with the same global i).
+
+        Args:
+            before: the utility measured now, before the choice takes effect (the same measure
+                :meth:`update` will be given afterwards). Needed with ``credit="improvement"``, ignored otherwise.
 
         Returns ``(cluster name, value)``. The choice stays pending until :meth:`update` credits it.
 
         Raises:
             RuntimeError: the previous selection has not been credited yet.
+            ValueError: ``credit="improvement"`` without a finite ``before``.
         """
         if self._pending is not None:
             raise RuntimeError("select() called twice without update(): credit the pending selection first")
+        if self.credit_mode == "improvement":
+            if before is None:
+                raise ValueError("credit='improvement' needs select(before=<the utility measured now>)")
+            before = _as_finite(before, "before")
+        elif before is not None:
+            before = _as_finite(before, "before")
         self._num_selections += 1
         log_i = math.log(self._num_selections)
-        cluster = _argmax_ucb(self._clusters, self.c, log_i)
-        value = _argmax_ucb(self._values[cluster], self.c, log_i)
+        cluster, cluster_p = self._choose(self._clusters, log_i)
+        value, value_p = self._choose(self._values[cluster], log_i)
         self._pending = self._last = (cluster, value)
+        self._pending_before = before
+        self._pending_probabilities = (cluster_p, value_p)
         name = self.cluster_names[cluster]
         return name, self.search_space[name][value]
 
-    def update(self, utility: float) -> None:
-        """Credits the pending selection with ``utility`` (Eq. 6), for its cluster and its value.
+    def update(self, utility: float) -> float:
+        """Credits the pending selection (Eq. 6) for its cluster and its value; returns the credit.
 
-        The paper's utility is the mean critic value of the updated policy, V-bar in Eq. 6.
+        The paper's utility is the mean critic value of the updated policy, V-bar in Eq. 6. The credit is the
+        utility (``credit="level"``) or the utility minus the pending selection's ``before``.
 
         Raises:
             RuntimeError: no selection is pending.
@@ -177,14 +251,73 @@ class ULTHO:
         """
         if self._pending is None:
             raise RuntimeError("update() without a pending selection: call select() first")
-        if hasattr(utility, "item") and not isinstance(utility, (int, float)):
-            utility = utility.item()
-        if isinstance(utility, bool) or not isinstance(utility, (int, float)) or not math.isfinite(utility):
-            raise ValueError(f"utility {utility!r} is not a finite number; the selection stays uncredited")
+        try:
+            utility = _as_finite(utility, "utility")
+        except ValueError:
+            raise ValueError(f"utility {utility!r} is not a finite number; the selection stays uncredited") from None
+        credit = utility - self._pending_before if self.credit_mode == "improvement" else utility
+        if not math.isfinite(credit):
+            raise ValueError(f"credit {credit!r} is not finite; the selection stays uncredited")
         cluster, value = self._pending
-        self._clusters[cluster].credit(float(utility))
-        self._values[cluster][value].credit(float(utility))
+        if self.strategy == "exp3":
+            reward = self._exp3_reward(credit)
+            self._exp3_credit(self._clusters, cluster, reward, self._pending_probabilities[0])
+            self._exp3_credit(self._values[cluster], value, reward, self._pending_probabilities[1])
+        self._clusters[cluster].credit(credit)
+        self._values[cluster][value].credit(credit)
+        count, mean, squares = self._stats
+        count += 1
+        delta = credit - mean
+        mean += delta / count
+        self._stats = [count, mean, squares + delta * (credit - mean)]
         self._pending = None
+        self._pending_before = None
+        self._last_credit = credit
+        return credit
+
+    def _choose(self, arms: Sequence[_Arm], log_i: float) -> tuple[int, float]:
+        """(index, probability with which it was drawn) of one level's choice under the strategy."""
+        if self.strategy == "ucb":  # Eqs. 4 and 5
+            return _first_best([self._scaled(arm.utility) + arm.bonus(self.c, log_i) for arm in arms]), 1.0
+        if self.strategy == "ts":
+            return _first_best([self._scaled(arm.utility) + self._rng.gauss(0.0, 1.0) * arm.posterior_std()
+                                for arm in arms]), 1.0
+        probabilities = self._exp3_probabilities(arms)
+        draw, total = self._rng.random(), 0.0
+        for index, p in enumerate(probabilities):
+            total += p
+            if draw < total:
+                return index, p
+        return len(arms) - 1, probabilities[-1]  # draw within rounding of 1
+
+    def _exp3_probabilities(self, arms: Sequence[_Arm]) -> list[float]:
+        """softmax(eta * S), S being each arm's discounted estimate of its summed rewards."""
+        top = max(arm.exp3_sum for arm in arms)
+        weights = [math.exp(self.exp3_eta * (arm.exp3_sum - top)) for arm in arms]
+        total = math.fsum(weights)
+        return [w / total for w in weights]
+
+    def _exp3_reward(self, credit: float) -> float:
+        """The credit mapped to (0, 1): logistic of its distance from the mean of the credits before it, in
+        units of the credit scale."""
+        x = self._scaled(credit - self._stats[1])
+        return 1.0 / (1.0 + math.exp(-x)) if x >= 0 else math.exp(x) / (1.0 + math.exp(x))  # no overflow
+
+    def _scaled(self, utility: float) -> float:
+        """``utility`` in units of the credit scale. With ``scale="running"`` and no spread among the credits
+        yet (fewer than two, or all equal) it is 0: a single credit says nothing about the units."""
+        if self.scale_mode == "none":
+            return utility
+        scale = self.credit_scale
+        return 0.0 if math.isnan(scale) else utility / scale
+
+    def _exp3_credit(self, arms: Sequence[_Arm], chosen: int, reward: float, probability: float) -> None:
+        """Every estimate S discounted by 1 - 1/W, then raised by the loss-based importance-weighted reward
+        estimate 1 - (1 - reward) / p for the chosen arm and 1 for the others (Lattimore and Szepesvari 2020,
+        Eq. 11.6: unbiased, and lower-variance than reward / p)."""
+        keep = 1.0 - 1.0 / self.window
+        for index, arm in enumerate(arms):
+            arm.exp3_sum = keep * arm.exp3_sum + 1.0 - ((1.0 - reward) / probability if index == chosen else 0.0)
 
     # ------------------------------------------------------------------ read-outs
     @property
@@ -200,6 +333,25 @@ class ULTHO:
         cluster, value = self._pending
         name = self.cluster_names[cluster]
         return name, self.search_space[name][value]
+
+    @property
+    def credit_scale(self) -> float:
+        """What utilities are divided by: 1 with ``scale="none"``; else the sample standard deviation of all
+        credits so far (``nan`` while it is undefined or 0: fewer than two credits, or all of them equal)."""
+        count, _, squares = self._stats
+        if self.scale_mode == "none":
+            return 1.0
+        return math.sqrt(squares / (count - 1)) if count >= 2 and squares > 0 else math.nan
+
+    @property
+    def last_credit(self) -> float:
+        """The latest credit after the transform (``nan`` before the first)."""
+        return self._last_credit
+
+    def options(self) -> dict[str, Any]:
+        """The constructor's arguments other than the search space, as given (for summaries and records)."""
+        return {"c": self.c, "window": self.window, "strategy": self.strategy, "credit": self.credit_mode,
+                "scale": self.scale_mode, "seed": self.seed, "exp3_eta": self.exp3_eta}
 
     def selections(self) -> dict[str, int]:
         """``{cluster: times chosen and credited}``, i.e. N - 1 per cluster (the paper's N_end - 1)."""
@@ -225,25 +377,35 @@ class ULTHO:
     def scalars(self) -> dict[str, float]:
         """A flat ``{tag: float}`` for TensorBoard: one ``writer.add_scalar(tag, x, step)`` per item.
 
-        For every cluster ``k`` and every value ``v`` of it (labelled by :func:`format_value`):
-        ``ultho/utility/k`` (U), ``ultho/bonus/k`` (c*sqrt(ln i / N)), ``ultho/ucb/k`` (U + bonus, the bound
-        Eq. 4 maximises), ``ultho/count/k`` (times selected and credited), and the same four under
-        ``.../k/v`` for the values (Eq. 5). The bonus uses i of the latest selection, so right after
-        :meth:`select` these are exactly the bounds that choice maximised. Also
-        ``ultho/selected_cluster`` (index of the latest choice's cluster, -1 before any),
-        ``ultho/selected_value_index`` and ``ultho/selected_value``.
+        For every cluster ``k`` and every value ``v`` of it (labelled by :func:`format_value`), under
+        ``.../k`` and ``.../k/v``: ``ultho/utility`` (U, in the credits' units) and ``ultho/count`` (times
+        selected and credited), and the strategy's own quantities: UCB's ``ultho/bonus`` (c*sqrt(ln i / N))
+        and ``ultho/ucb`` (U / scale + bonus, the bound Eqs. 4-5 maximise); Thompson sampling's
+        ``ultho/ts_mean`` (U / scale) and ``ultho/ts_std``; Exp3's ``ultho/probability`` (of the cluster, and of
+        the value within its cluster). The bonus uses i of the latest selection, so right after :meth:`select`
+        these are exactly the bounds that choice maximised. Also ``ultho/selected_cluster`` (index of the
+        latest choice's cluster, -1 before any), ``ultho/selected_value_index``, ``ultho/selected_value``,
+        ``ultho/credit_scale`` and ``ultho/last_credit`` (the latest credit, after the transform).
         """
         log_i = math.log(self._num_selections) if self._num_selections > 0 else 0.0
         out: dict[str, float] = {}
         for name, cluster_arm, value_arms in zip(self.cluster_names, self._clusters, self._values):
-            arms = [(name, cluster_arm)]
-            arms += [(f"{name}/{format_value(v)}", a) for v, a in zip(self.search_space[name], value_arms)]
-            for tag, arm in arms:
-                bonus = arm.bonus(self.c, log_i)
-                out[f"ultho/utility/{tag}"] = arm.utility
-                out[f"ultho/bonus/{tag}"] = bonus
-                out[f"ultho/ucb/{tag}"] = arm.utility + bonus
-                out[f"ultho/count/{tag}"] = float(arm.count - 1)
+            levels = [([name], [cluster_arm], self._clusters),
+                      ([f"{name}/{format_value(v)}" for v in self.search_space[name]], value_arms, value_arms)]
+            for tags, arms, siblings in levels:
+                probabilities = self._exp3_probabilities(siblings) if self.strategy == "exp3" else None
+                for tag, arm in zip(tags, arms):
+                    out[f"ultho/utility/{tag}"] = arm.utility
+                    out[f"ultho/count/{tag}"] = float(arm.count - 1)
+                    if self.strategy == "ucb":
+                        bonus = arm.bonus(self.c, log_i)
+                        out[f"ultho/bonus/{tag}"] = bonus
+                        out[f"ultho/ucb/{tag}"] = self._scaled(arm.utility) + bonus
+                    elif self.strategy == "ts":
+                        out[f"ultho/ts_mean/{tag}"] = self._scaled(arm.utility)
+                        out[f"ultho/ts_std/{tag}"] = arm.posterior_std()
+                    else:
+                        out[f"ultho/probability/{tag}"] = probabilities[siblings.index(arm)]
         if self._last is None:
             out["ultho/selected_cluster"] = -1.0
             out["ultho/selected_value_index"] = -1.0
@@ -253,23 +415,31 @@ class ULTHO:
             out["ultho/selected_cluster"] = float(cluster)
             out["ultho/selected_value_index"] = float(value)
             out["ultho/selected_value"] = float(self.search_space[self.cluster_names[cluster]][value])
+        out["ultho/credit_scale"] = self.credit_scale
+        out["ultho/last_credit"] = self._last_credit
         return out
 
     # ------------------------------------------------------------------ persistence
     def state_dict(self) -> dict[str, Any]:
-        """Everything needed to continue exactly, as JSON-serialisable builtins (a pending selection too)."""
+        """Everything needed to continue exactly, as JSON-serialisable builtins (a pending selection and the
+        generator's state too)."""
 
         def arm_state(arm: _Arm) -> dict[str, Any]:
-            return {"count": arm.count, "credits": list(arm.credits)}
+            return {"count": arm.count, "credits": list(arm.credits), "exp3_sum": arm.exp3_sum}
 
+        version, internal, gauss_next = self._rng.getstate()
         return {
             "format": STATE_FORMAT,
             "search_space": {name: list(values) for name, values in self.search_space.items()},
-            "c": self.c,
-            "window": self.window,
+            **self.options(),
             "num_selections": self._num_selections,
             "pending": list(self._pending) if self._pending is not None else None,
+            "pending_before": self._pending_before,
+            "pending_probabilities": list(self._pending_probabilities),
             "last": list(self._last) if self._last is not None else None,
+            "last_credit": None if math.isnan(self._last_credit) else self._last_credit,
+            "credit_stats": list(self._stats),
+            "rng": [version, list(internal), gauss_next],
             "clusters": [arm_state(arm) for arm in self._clusters],
             "values": [[arm_state(arm) for arm in arms] for arms in self._values],
         }
@@ -278,14 +448,17 @@ class ULTHO:
     def from_state_dict(cls, state: Mapping[str, Any]) -> "ULTHO":
         """A bandit rebuilt from :meth:`state_dict`; raises ValueError if the state is malformed."""
         try:
-            bandit = cls(state["search_space"], c=state["c"], window=state["window"])
+            options = {k: state[k] for k in ("strategy", "credit", "scale", "seed", "exp3_eta") if k in state}
+            bandit = cls(state["search_space"], c=state["c"], window=state["window"], **options)
         except (KeyError, TypeError) as err:
             raise ValueError(f"bandit state dict is malformed: {err!r}") from None
         bandit.load_state_dict(state)
         return bandit
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
-        """Restores :meth:`state_dict` output into this bandit, which must have the same space, c and W.
+        """Restores :meth:`state_dict` output into this bandit, which must have the same space and options.
+
+        A state of format 1 (before the variants existed) is the paper's UCB with level credits, unscaled.
 
         Raises ValueError (and leaves this bandit unchanged) if the state does not match or is inconsistent.
         """
@@ -295,18 +468,23 @@ class ULTHO:
             raise ValueError(f"bandit state dict is malformed: {err!r}") from None
 
     def _load_checked(self, state: Mapping[str, Any]) -> None:
-        if state.get("format") != STATE_FORMAT:
+        if state.get("format") not in (1, STATE_FORMAT):
             raise ValueError(f"bandit state format {state.get('format')!r} is not {STATE_FORMAT}")
         theirs = validate_search_space(state["search_space"])
         if list(theirs) != self.cluster_names or any(
             [format_value(v) for v in theirs[k]] != [format_value(v) for v in self.search_space[k]] for k in theirs
         ):
             raise ValueError(f"bandit state is for search space {theirs}, not {self.search_space}")
-        if float(state["c"]) != self.c or state["window"] != self.window:
-            raise ValueError(
-                f"bandit state has c={state['c']}, window={state['window']}; this bandit c={self.c}, "
-                f"window={self.window}"
-            )
+        paper = {"strategy": "ucb", "credit": "level", "scale": "none", "seed": self.seed,
+                 "exp3_eta": self.exp3_eta}
+        theirs_options = {"c": float(state["c"]), "window": state["window"],
+                          **{k: state.get(k, default) for k, default in paper.items()}}
+        if theirs_options != self.options():
+            different = ", ".join(f"{k}={theirs_options[k]!r}" for k in theirs_options
+                                  if theirs_options[k] != self.options()[k])
+            mine = ", ".join(f"{k}={self.options()[k]!r}" for k in theirs_options
+                             if theirs_options[k] != self.options()[k])
+            raise ValueError(f"bandit state has {different}; this bandit {mine}")
 
         def arm_from(arm_state: Mapping[str, Any]) -> _Arm:
             arm = _Arm(self.window)
@@ -319,6 +497,7 @@ class ULTHO:
             arm.credits.extend(credits)
             arm.count = count
             arm.utility = math.fsum(credits) / len(credits) if credits else 0.0
+            arm.exp3_sum = float(arm_state.get("exp3_sum", 0.0))
             return arm
 
         clusters = [arm_from(s) for s in state["clusters"]]
@@ -341,9 +520,31 @@ class ULTHO:
                 raise ValueError(f"bandit state names a selection {list(choice)} outside its search space")
         if num_selections > 0 and last is None:
             raise ValueError("bandit state has selections but no latest selection")
+        before = state.get("pending_before")
+        if pending is not None and self.credit_mode == "improvement" and before is None:
+            raise ValueError("bandit state has a pending selection without the utility measured before it")
+        if "credit_stats" in state:
+            count, mean, squares = state["credit_stats"]
+            stats = [int(count), float(mean), float(squares)]
+        else:  # format 1 kept no statistics; they are only read with scale="running", which format 1 lacks
+            stats = [credited, 0.0, 0.0]
+        if stats[0] != credited:
+            raise ValueError(f"bandit state's credit statistics count {stats[0]} credits, not {credited}")
+        rng = random.Random()
+        if "rng" in state:
+            version, internal, gauss_next = state["rng"]
+            rng.setstate((version, tuple(internal), gauss_next))
+        else:
+            rng.seed(self.seed)
+        last_credit = state.get("last_credit")
         self._clusters, self._values = clusters, values
         self._num_selections = num_selections
         self._pending, self._last = pending, last
+        self._pending_before = None if before is None else float(before)
+        self._pending_probabilities = tuple(state.get("pending_probabilities", (1.0, 1.0)))
+        self._last_credit = math.nan if last_credit is None else float(last_credit)
+        self._stats = stats
+        self._rng = rng
 
 
 def parse_value(token: str) -> Number:

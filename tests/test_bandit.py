@@ -2,6 +2,7 @@
 
 import json
 import math
+import re
 
 import pytest
 from hypothesis import given, settings
@@ -89,7 +90,8 @@ def test_scalar_tags_cover_every_arm():
         for tag in ("learning_rate", "learning_rate/0.001", "learning_rate/0.0025", "learning_rate/0.005",
                     "minibatch_size", "minibatch_size/128", "minibatch_size/256", "minibatch_size/512"):
             assert s[f"ultho/{kind}/{tag}"] == 0.0
-    assert len(s) == 4 * 8 + 3
+    assert s["ultho/credit_scale"] == 1.0 and math.isnan(s["ultho/last_credit"])
+    assert len(s) == 4 * 8 + 5
     assert all(isinstance(v, float) for v in s.values())
 
 
@@ -316,3 +318,204 @@ def test_mismatched_or_corrupt_state_dict(corrupt, message):
     with pytest.raises(ValueError, match=message):
         target.load_state_dict(state)
     assert target.state_dict() == before
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Variants: credit transforms, running scale, Thompson sampling, Exp3
+# ----------------------------------------------------------------------------------------------------------
+
+
+def test_improvement_credit_and_running_scale_by_hand():
+    bandit = ULTHO({"a": [1], "b": [2]}, c=1.0, window=10, credit="improvement", scale="running")
+    with pytest.raises(ValueError, match="needs select\\(before="):
+        bandit.select()
+    assert bandit.select(before=1.0) == ("a", 1)  # every bound 0: the earliest
+    assert bandit.update(1.5) == 0.5  # the change since the choice, not the level 1.5
+    assert math.isnan(bandit.credit_scale)  # one credit: no spread yet, so utilities count as 0
+    # i = 2: a = 0 + sqrt(ln 2 / 2) = 0.5887, b = 0 + sqrt(ln 2) = 0.8326 -> b
+    assert bandit.select(before=1.5) == ("b", 2)
+    assert bandit.update(1.2) == pytest.approx(-0.3)
+    # credits 0.5, -0.3: sample std sqrt(0.32) = 0.5657; in those units U_a = 0.8839, U_b = -0.5303
+    sigma = math.sqrt(0.32)
+    assert bandit.credit_scale == pytest.approx(sigma)
+    s = bandit.scalars()
+    assert s["ultho/utility/a"] == 0.5 and s["ultho/utility/b"] == pytest.approx(-0.3)  # the credits' own units
+    assert s["ultho/ucb/a"] == pytest.approx(0.5 / sigma + math.sqrt(math.log(2) / 2))
+    assert s["ultho/ucb/b"] == pytest.approx(-0.3 / sigma + math.sqrt(math.log(2) / 2))
+    assert s["ultho/last_credit"] == pytest.approx(-0.3)
+    # i = 3: a = 0.8839 + sqrt(ln 3 / 2) = 1.6250, b = -0.5303 + 0.7411 = 0.2108 -> a
+    assert bandit.select(before=1.2) == ("a", 1)
+
+
+@pytest.mark.parametrize("strategy", ["ucb", "ts", "exp3"])
+def test_running_scale_makes_choices_independent_of_the_credits_units(strategy):
+    measures = [math.sin(0.9 * k) + 0.05 * k for k in range(120)]
+    chosen = []
+    for units in (0.01, 1.0, 100.0):
+        bandit = ULTHO({"lr": [1, 2, 3], "mb": [4, 5]}, c=1.0, window=20, strategy=strategy, credit="improvement",
+                       scale="running", seed=2)
+        picks = []
+        for k in range(len(measures) - 1):
+            picks.append(bandit.select(before=units * measures[k]))
+            bandit.update(units * measures[k + 1])
+        chosen.append(picks)
+    assert chosen[0] == chosen[1] == chosen[2]
+    assert len(set(chosen[1])) > 1
+
+
+def test_scale_none_keeps_the_papers_bounds():
+    plain, scaled = ULTHO({"a": [1], "b": [2]}, c=1.0), ULTHO({"a": [1], "b": [2]}, c=1.0, scale="none")
+    for u in (3.0, -2.0, 7.5, 0.25):
+        assert plain.select() == scaled.select()
+        plain.update(u)
+        scaled.update(u)
+        assert plain.scalars() == scaled.scalars()
+    assert plain.credit_scale == 1.0
+
+
+# Random(3).gauss(0, 1), the first nine draws: three per selection (two clusters, then the chosen one's value).
+GAUSS_3 = [0.09470803828730423, 1.2500243810835503, -0.931378367720707, 0.9923772805192402, -0.25915453769343405,
+           -0.26151098398117395, 1.8997252784647571, 0.1575370716337192, -0.042924253792244314]
+
+
+def test_thompson_sampling_sequence_by_hand():
+    import random
+
+    generator = random.Random(3)
+    assert [generator.gauss(0.0, 1.0) for _ in GAUSS_3] == GAUSS_3
+    bandit = ULTHO({"a": [1], "b": [2]}, strategy="ts", seed=3)
+    # 1: a = 0 + 0.0947 / 1, b = 0 + 1.2500 / 1 -> b
+    assert bandit.select() == ("b", 2)
+    bandit.update(0.5)
+    s = bandit.scalars()
+    assert (s["ultho/ts_mean/b"], s["ultho/ts_std/b"], s["ultho/ts_std/a"]) == (0.5, 1 / math.sqrt(2), 1.0)
+    # 2: a = 0 + 0.9924 / 1 = 0.9924, b = 0.5 - 0.2592 / sqrt(2) = 0.3167 -> a
+    assert bandit.select() == ("a", 1)
+    bandit.update(-1.0)
+    # 3: a = -1 + 1.8997 / sqrt(2) = 0.3433, b = 0.5 + 0.1575 / sqrt(2) = 0.6114 -> b
+    assert bandit.select() == ("b", 2)
+    assert "ultho/ucb/a" not in bandit.scalars()
+
+
+def test_exp3_sequence_by_hand():
+    import random
+
+    draws = [0.13436424411240122, 0.8474337369372327, 0.763774618976614, 0.2550690257394217, 0.49543508709194095]
+    generator = random.Random(1)
+    assert [generator.random() for _ in draws] == draws
+    bandit = ULTHO({"a": [1], "b": [2]}, window=2, strategy="exp3", seed=1, exp3_eta=0.5)
+    # 1: S = (0, 0), p = (0.5, 0.5); draw 0.134 < 0.5 -> a (the value level, one arm, has p = 1)
+    assert bandit.scalars()["ultho/probability/a"] == 0.5
+    assert bandit.select() == ("a", 1)
+    # credit 2: reward sigmoid(2 - 0) = 0.88079708 (no credits before: mean 0; unscaled); S discounted by
+    # 1 - 1/2, then S_a += 1 - (1 - 0.88079708) / 0.5 = 0.76159416 and S_b += 1
+    bandit.update(2.0)
+    p_a = 1 / (1 + math.exp(-0.5 * (0.76159416 - 1.0)))
+    assert bandit.scalars()["ultho/probability/a"] == pytest.approx(p_a, abs=1e-8)  # 0.47023451
+    # 2: draw 0.764 >= p_a -> b, drawn with probability 0.52976549
+    assert bandit.select() == ("b", 2)
+    # credit -1 against the mean 2 of the credits before: reward sigmoid(-3) = 0.04742587;
+    # S_a = 0.76159416 / 2 + 1 = 1.38079708, S_b = 1 / 2 + 1 - (1 - 0.04742587) / 0.52976549 = -0.29810527
+    bandit.update(-1.0)
+    p_a = 1 / (1 + math.exp(-0.5 * (1.38079708 + 0.29810527)))
+    assert bandit.scalars()["ultho/probability/a"] == pytest.approx(p_a, abs=1e-8)  # 0.69834961
+    # 3: draw 0.495 < 0.698 -> a
+    assert bandit.select() == ("a", 1)
+
+
+VARIANTS = [dict(strategy=s, credit=k, scale=x) for s in ("ucb", "ts", "exp3") for k in ("level", "improvement")
+            for x in ("none", "running")]
+
+
+@pytest.mark.parametrize("options", VARIANTS, ids=lambda o: "-".join(o.values()))
+def test_every_variant_round_trips_exactly_through_json(options):
+    space = {"lr": [1e-3, 2e-3, 5e-3], "mb": [64, 128], "vf": [0.5]}
+    measures = [math.sin(1.7 * k) + 0.01 * k for k in range(80)]
+    original = ULTHO(space, c=2.0, window=4, seed=11, **options)
+    for k in range(30):
+        original.select(before=measures[k])
+        original.update(measures[k + 1])
+    original.select(before=measures[30])  # a pending selection, its `before` included
+    restored = ULTHO.from_state_dict(json.loads(json.dumps(original.state_dict())))
+    assert restored.state_dict() == original.state_dict() and restored.options() == original.options()
+    for k in range(30, 79):
+        assert original.update(measures[k + 1]) == restored.update(measures[k + 1])
+        assert original.select(before=measures[k + 1]) == restored.select(before=measures[k + 1])
+        assert original.scalars() == restored.scalars()
+
+
+def test_options_must_match_when_loading():
+    state = ULTHO({"lr": [1, 2]}, strategy="ts", seed=5).state_dict()
+    with pytest.raises(ValueError, match="strategy='ts'.*strategy='ucb'"):
+        ULTHO({"lr": [1, 2]}).load_state_dict(state)
+    with pytest.raises(ValueError, match="seed=5.*seed=6"):
+        ULTHO({"lr": [1, 2]}, strategy="ts", seed=6).load_state_dict(state)
+
+
+def test_a_format_1_state_loads_as_the_papers_bandit():
+    """Checkpoints written before the variants existed keep resuming."""
+    bandit = ULTHO({"a": [1, 2], "b": [3]}, c=1.0, window=3)
+    for u in (0.5, 0.25, 1.0):
+        bandit.select()
+        bandit.update(u)
+    bandit.select()
+    state = bandit.state_dict()
+    old = {key: state[key] for key in ("search_space", "c", "window", "num_selections", "pending", "last")}
+    old |= {"format": 1, "clusters": [{"count": a["count"], "credits": a["credits"]} for a in state["clusters"]],
+            "values": [[{"count": a["count"], "credits": a["credits"]} for a in arms] for arms in state["values"]]}
+    restored = ULTHO.from_state_dict(old)
+    restored.update(0.75)
+    bandit.update(0.75)
+    assert restored.select() == bandit.select() and restored.scalars() == bandit.scalars()
+    with pytest.raises(ValueError, match="strategy='ucb'"):
+        ULTHO({"a": [1, 2], "b": [3]}, c=1.0, window=3, strategy="exp3").load_state_dict(old)
+
+
+@pytest.mark.parametrize("options, message", [
+    (dict(strategy="greedy"), "strategy='greedy' is not one of ucb, ts, exp3"),
+    (dict(credit="delta"), "credit='delta' is not one of level, improvement"),
+    (dict(scale="max"), "scale='max' is not one of none, running"),
+    (dict(seed=1.5), "seed=1.5 must be an integer"),
+    (dict(exp3_eta=0.0), "exp3_eta=0.0 must be a finite number > 0"),
+])
+def test_bad_options_are_refused(options, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        ULTHO({"lr": [1, 2]}, **options)
+
+
+def _stationary_pulls(options: dict, scale: float, seed: int, pulls: int = 250) -> dict[tuple[int, int], int]:
+    """Pulls of each (cluster, value) arm on a stationary two-level problem whose credits are ``scale`` times
+    a unit problem: means 0, 0.5, 1 in cluster x and 1, 1.5, 3 in cluster y (the best arm: y's third value),
+    Gaussian noise of standard deviation 1."""
+    import random
+
+    means = {"x": [0.0, 0.5, 1.0], "y": [1.0, 1.5, 3.0]}
+    noise = random.Random(1000 + seed)
+    bandit = ULTHO({"x": [0, 1, 2], "y": [0, 1, 2]}, seed=seed, **options)
+    pulls_of: dict[tuple[int, int], int] = {}
+    for _ in range(pulls):
+        cluster, value = bandit.select()
+        key = (list(means).index(cluster), value)
+        pulls_of[key] = pulls_of.get(key, 0) + 1
+        bandit.update(scale * (means[cluster][value] + noise.gauss(0.0, 1.0)))
+    return pulls_of
+
+
+@pytest.mark.parametrize("strategy", ["ucb", "ts", "exp3"])
+@pytest.mark.parametrize("scale", [0.01, 1.0, 100.0])
+def test_with_running_scale_the_best_arm_is_chosen_most_at_every_credit_scale(strategy, scale):
+    """250 pulls (MiniGrid's 244 iterations), W = 50, c = 5 for UCB, five seeds: the best arm gets the most pulls
+    in every one."""
+    for seed in range(5):
+        pulls = _stationary_pulls(dict(c=5.0, window=50, strategy=strategy, scale="running"), scale, seed)
+        assert max(pulls, key=pulls.get) == (1, 2), (seed, pulls)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_the_papers_ucb_depends_on_the_credit_scale(seed):
+    """Unscaled, c = 5 swamps credits of 0.01: an even rotation. Credits of 100 swamp c = 5: the first value
+    of the first cluster credited above 0 keeps every pull, and the best value is never tried."""
+    small = _stationary_pulls(dict(c=5.0, window=50), 0.01, seed)
+    assert len(small) == 6 and max(small.values()) - min(small.values()) <= 2  # 250 pulls: 41 to 43 each
+    large = _stationary_pulls(dict(c=5.0, window=50), 100.0, seed)
+    assert (1, 2) not in large and max(large.values()) >= 248
