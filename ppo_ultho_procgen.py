@@ -148,6 +148,17 @@ class Args:
     ultho_utility: Literal["value", "return", "value-after"] = "value"
     """credit: mean critic value over the next rollout, mean GAE return over it, or the updated critic
     on this rollout's observations (the paper's Algorithm 1 read literally); see the README"""
+    ultho_strategy: Literal["ucb", "ts", "exp3"] = "ucb"
+    """how the bandit chooses at both levels: ucb (Eqs. 4-5, the paper's), ts (Gaussian Thompson sampling)
+    or exp3 (discounted Exp3); docs/strategies.md says when to use which"""
+    ultho_credit: Literal["level", "improvement"] = "level"
+    """what a choice is credited with: the utility as measured (level, the paper's) or its change since
+    just before the choice took effect (improvement)"""
+    ultho_scale: Literal["none", "running"] = "none"
+    """none (the paper's) or running: utilities in units of the credits' running standard deviation, so c
+    means the same whatever the benchmark's value scale"""
+    ultho_exp3_eta: float = 0.5
+    """Exp3's learning rate (with --ultho-strategy exp3)"""
 
     # Evaluation, checkpoints, output
     eval_episodes: int = 100
@@ -261,6 +272,8 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
             raise UsageError(f"--ultho-c must be a finite number >= 0, got {args.ultho_c}")
         if args.ultho_window < 1:
             raise UsageError(f"--ultho-window must be >= 1, got {args.ultho_window}")
+        if not (math.isfinite(args.ultho_exp3_eta) and args.ultho_exp3_eta > 0):
+            raise UsageError(f"--ultho-exp3-eta must be a finite number > 0, got {args.ultho_exp3_eta}")
     if checkpoint is None:
         if os.sep in run_name(args) or run_name(args) in ("", ".", ".."):
             raise UsageError(f"--run-name {args.run_name!r} is not a plain directory name")
@@ -489,7 +502,9 @@ def main(args: Args) -> None:
     device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
     minibatch_rng = np.random.default_rng(args.seed)
 
-    bandit = ULTHO(space, c=args.ultho_c, window=args.ultho_window) if args.ultho else None
+    bandit = ULTHO(space, c=args.ultho_c, window=args.ultho_window, strategy=args.ultho_strategy,
+                   credit=args.ultho_credit, scale=args.ultho_scale, seed=args.seed,
+                   exp3_eta=args.ultho_exp3_eta) if args.ultho else None
     tuned = list(space) if space is not None else list(SEARCH_SPACE)
 
     envs = make_envs(args, args.num_envs, test=False, seed=args.seed)
@@ -624,10 +639,13 @@ def main(args: Args) -> None:
         credit = None
         if bandit is not None:
             tick = time.perf_counter()
+            # What is measured now, before this iteration's choice takes effect: it credits the previous choice
+            # and is the baseline of --ultho-credit improvement (value-after credits after the update instead).
+            measured = (returns if args.ultho_utility == "return" else values).mean().item()
             if bandit.pending is not None and args.ultho_utility != "value-after":
-                credit = (values if args.ultho_utility == "value" else returns).mean().item()
+                credit = measured
                 bandit.update(credit)
-            cluster, choice = bandit.select()
+            cluster, choice = bandit.select(before=measured)
             setattr(args, cluster, choice)
             if cluster == "learning_rate":
                 for group in optimizer.param_groups:
@@ -796,6 +814,10 @@ def main(args: Args) -> None:
             "c": bandit.c,
             "window": bandit.window,
             "utility": args.ultho_utility,
+            "strategy": bandit.strategy,
+            "credit": bandit.credit_mode,
+            "scale": bandit.scale_mode,
+            "exp3_eta": bandit.exp3_eta,
             "selections": bandit.selections(),
             "value_selections": bandit.value_selections(),
             "coi": bandit.cluster_of_interest(),

@@ -91,6 +91,44 @@ def test_killed_and_resumed_run_equals_uninterrupted_run(tmp_path):
     assert len(a["ultho/selected_cluster"]) == 12
 
 
+def test_variant_run_logs_its_own_quantities_and_resumes_exactly(tmp_path):
+    """Thompson sampling on improvement credits in running-scale units: killed and resumed, the same run (the
+    generator's state is in the checkpoint); each credit is the change of the measured value."""
+    args = ["--env-id", "MiniGrid-Empty-5x5-v0", "--num-envs", "8", "--num-steps", "64", "--total-timesteps",
+            "6144", "--minibatch-size", "128", "--ultho-strategy", "ts", "--ultho-credit", "improvement",
+            "--ultho-scale", "running", "--checkpoint-every", "2", "--eval-episodes", "0", "--quiet",
+            "--runs-dir", str(tmp_path)]
+    run_ok(SCRIPT, *args, "--run-name", "whole")
+    kill_after_first_checkpoint(SCRIPT, str(tmp_path / "killed"), *args, "--run-name", "killed")
+    assert not (tmp_path / "killed" / "summary.json").exists()
+    run_ok(SCRIPT, "--resume", str(tmp_path / "killed"), "--quiet")
+    whole, resumed = summary(str(tmp_path / "whole")), summary(str(tmp_path / "killed"))
+    assert whole["bandit"] == resumed["bandit"]
+    assert (whole["bandit"]["strategy"], whole["bandit"]["credit"], whole["bandit"]["scale"]) == \
+        ("ts", "improvement", "running")
+    a, b = scalars(str(tmp_path / "whole")), scalars(str(tmp_path / "killed"))
+    for tag in ("ultho/selected_cluster", "ultho/selected_value", "ultho/last_credit", "ultho/credit_scale",
+                "ultho/ts_mean/learning_rate", "ultho/ts_std/vf_coef/0.5", "losses/value_loss"):
+        np.testing.assert_array_equal(np.array(a[tag]), np.array(b[tag]), err_msg=tag)  # nan before any credit
+    assert "ultho/ucb/learning_rate" not in a
+    measured = [v for _, v in a["ultho/credit"]]  # the value measured at iterations 2..12
+    improvements = [v for _, v in a["ultho/last_credit"]][2:]  # credited at iterations 3..12 (1: none, 2: from V-bar 1)
+    assert improvements == pytest.approx([now - before for before, now in zip(measured, measured[1:])], abs=1e-6)
+    assert len(set(v for _, v in a["ultho/selected_cluster"])) > 1
+
+
+def test_exp3_run_logs_probabilities_that_sum_to_one(tmp_path):
+    run_ok(SCRIPT, "--env-id", "MiniGrid-Empty-5x5-v0", "--num-envs", "4", "--num-steps", "64", "--total-timesteps",
+           "1280", "--minibatch-size", "64", "--ultho-clusters", "minibatch_size=64,128", "vf_coef",
+           "--ultho-strategy", "exp3", "--eval-episodes", "0", "--runs-dir", str(tmp_path), "--run-name", "e")
+    series = scalars(str(tmp_path / "e"))
+    for k in range(5):
+        clusters = series["ultho/probability/minibatch_size"][k][1] + series["ultho/probability/vf_coef"][k][1]
+        values = sum(series[f"ultho/probability/vf_coef/{v}"][k][1] for v in ("0.25", "0.5", "1.0"))
+        assert clusters == pytest.approx(1.0, abs=1e-6) and values == pytest.approx(1.0, abs=1e-6)
+    assert summary(str(tmp_path / "e"))["bandit"]["exp3_eta"] == 0.5
+
+
 def test_non_finite_loss_stops_and_keeps_last_good_checkpoint(tmp_path):
     # Iteration 1 takes lr=1e-3 (every bound is 0). Iteration 2 explores the untried 1e38, whose bonus
     # c*sqrt(ln 2 / 1) exceeds the tried arm's by 5*(0.83-0.59) = 1.2 while |credit| < 1 on Empty-5x5.
@@ -119,6 +157,9 @@ BAD_INPUTS = [
     (["--ultho-clusters", "vf_coef=0.5,"], "vf_coef=0.5,"),
     (["--ultho-c", "-1"], "--ultho-c must be a finite number >= 0, got -1.0"),
     (["--ultho-window", "0"], "--ultho-window must be >= 1, got 0"),
+    (["--ultho-strategy", "greedy"], "greedy"),
+    (["--ultho-credit", "delta"], "delta"),
+    (["--ultho-exp3-eta", "0"], "--ultho-exp3-eta must be a finite number > 0, got 0.0"),
     (["--ultho-utility", "reward"], "reward"),
     (["--total-timesteps", "100"], "--total-timesteps 100"),
     (["--learning-rate", "-0.1"], "-0.1"),
