@@ -25,12 +25,14 @@ from typing import Optional
 
 from relay_ultho import (RunFailed, UsageError, atomic_write_json, complete_run, parse_split_args, read_json,
                          resolve_script, run_state, script_command)
-from ultho_bandit import format_value
+from ultho_bandit import CREDITS, SCALES, STRATEGIES, format_value
 
 TOOL = "sweep.py"
 SWEEP_FORMAT = 1
 RELAY_TOOL = os.path.join(os.path.dirname(os.path.abspath(__file__)), "relay_ultho.py")
 METHODS = ("ppo", "ultho", "relay")
+PAPER_VARIANT = ("ucb", "level", "none")
+"""(strategy, credit, scale): the paper's bandit; other variants add --ultho-strategy/credit/scale to their runs"""
 
 
 @dataclass(frozen=True)
@@ -76,6 +78,8 @@ class Run:
     """the script's arguments (a relay: those after --)"""
     source: Optional["Run"] = None
     """a relay's full ULTHO run, reused with --from when the grid has it"""
+    variant: Optional[str] = None
+    """the bandit's strategy:credit:scale (ultho and relay runs)"""
     status: str = "pending"
     attempts: int = 0
     error: Optional[str] = None
@@ -105,8 +109,10 @@ class Run:
 
 
 def expand(scripts: list[str], env_ids: list[str], methods: list[str], points: list[tuple[float, int]],
-           seeds: list[int], total_timesteps: Optional[int], extra_args: list[str], out: str) -> list[Run]:
-    """Every grid point in a fixed order; a relay follows the ULTHO run it reuses. ``points``: the (c, W)."""
+           seeds: list[int], total_timesteps: Optional[int], extra_args: list[str], out: str,
+           variants: tuple[tuple[str, str, str], ...] = (PAPER_VARIANT,)) -> list[Run]:
+    """Every grid point in a fixed order; a relay follows the ULTHO run it reuses. ``points``: the (c, W);
+    ``variants``: the (strategy, credit, scale) of the bandit."""
     runs = []
     budget = ["--total-timesteps", str(total_timesteps)] if total_timesteps is not None else []
     for script, env_id, seed in itertools.product(scripts, env_ids, seeds):
@@ -117,19 +123,22 @@ def expand(scripts: list[str], env_ids: list[str], methods: list[str], points: l
             runs.append(Run(f"{prefix}__ppo__s{seed}", script, env_id, "ppo", None, None, seed,
                             os.path.join(out, "runs", f"{prefix}__ppo__s{seed}"),
                             [*base, "--no-ultho", *extra_args, "--quiet"]))
-        for c, window in points:
-            tag = f"c{format_value(c)}_w{window}"
+        for variant, (c, window) in itertools.product(variants, points):
+            name = "" if variant == PAPER_VARIANT else "_" + "-".join(variant)
+            tag = f"{name.lstrip('_')}{'_' if name else ''}c{format_value(c)}_w{window}"
             bandit = ["--ultho-c", format_value(c), "--ultho-window", str(window)]
+            if variant != PAPER_VARIANT:
+                bandit += ["--ultho-strategy", variant[0], "--ultho-credit", variant[1], "--ultho-scale", variant[2]]
             ultho = None
             if "ultho" in methods:
                 ultho = Run(f"{prefix}__ultho_{tag}__s{seed}", script, env_id, "ultho", c, window, seed,
                             os.path.join(out, "runs", f"{prefix}__ultho_{tag}__s{seed}"),
-                            [*base, *bandit, *extra_args, "--quiet"])
+                            [*base, *bandit, *extra_args, "--quiet"], variant=":".join(variant))
                 runs.append(ultho)
             if "relay" in methods:
                 relay = Run(f"{prefix}__relay_{tag}__s{seed}", script, env_id, "relay", c, window, seed,
                             os.path.join(out, "relays", f"{prefix}__relay_{tag}__s{seed}"),
-                            [*base, *bandit, *extra_args], source=ultho)
+                            [*base, *bandit, *extra_args], source=ultho, variant=":".join(variant))
                 runs.append(relay)
                 if ultho is not None:
                     ultho.dependents.append(relay)
@@ -160,7 +169,8 @@ def execute(run: Run, max_retries: int, log_path: str) -> tuple[str, int, Option
 def index(grid: dict, runs: list[Run], out: str) -> dict:
     return {"format": SWEEP_FORMAT, "grid": grid, "runs": [{
         "name": r.name, "script": os.path.basename(r.script), "benchmark": r.benchmark, "env_id": r.env_id,
-        "method": r.method, "c": r.c, "window": r.window, "seed": r.seed, "path": os.path.relpath(r.path, out),
+        "method": r.method, "c": r.c, "window": r.window, "variant": r.variant, "seed": r.seed,
+        "path": os.path.relpath(r.path, out),
         "status": r.status, "attempts": r.attempts, "error": r.error} for r in runs]}
 
 
@@ -252,6 +262,16 @@ def total_steps(runs: list[Run], budget_of) -> int:
     return sum(budget_of(r) * (1 if r.method != "relay" else 2 if r.source is not None else 3) for r in runs)
 
 
+def parse_variant(text: str) -> tuple[str, str, str]:
+    """``"ts:improvement:running"`` -> ("ts", "improvement", "running"), for --variants."""
+    parts = tuple(text.split(":"))
+    if len(parts) != 3 or parts[0] not in STRATEGIES or parts[1] not in CREDITS or parts[2] not in SCALES:
+        raise argparse.ArgumentTypeError(f"{text!r} is not STRATEGY:CREDIT:SCALE with a strategy of "
+                                         f"{'/'.join(STRATEGIES)}, a credit of {'/'.join(CREDITS)} and a scale of "
+                                         f"{'/'.join(SCALES)}")
+    return parts
+
+
 def parse_point(text: str) -> tuple[float, int]:
     """``"5:10"`` -> (5.0, 10), for --points."""
     c, sep, window = text.partition(":")
@@ -289,6 +309,9 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     grid.add_argument("--points", nargs="+", type=parse_point, metavar="C:W",
                       help="(c, W) pairs for ultho and relay, e.g. 5:10 1:50, instead of every --c with every "
                            "--window"),
+    grid.add_argument("--variants", nargs="+", type=parse_variant, metavar="STRATEGY:CREDIT:SCALE",
+                      help="the bandit's variants for ultho and relay, e.g. ts:improvement:running (default "
+                           "ucb:level:none, the paper's; docs/strategies.md)")
     grid.add_argument("--seeds", nargs="+", type=int, metavar="SEED", help="seeds (default 1)")
     grid.add_argument("--total-timesteps", type=int, metavar="N",
                       help="steps per run (default: the preset's budget, else the script's default)")
@@ -328,7 +351,9 @@ def main(argv: list[str]) -> int:
             windows = sorted({w for _, w in points})
         seeds = args.seeds or (list(PAPER_SEEDS) if preset else [1])
         total_timesteps = args.total_timesteps or (preset.total_timesteps if preset else None)
+        variants = args.variants or [PAPER_VARIANT]
         for name, values in (("--methods", methods), ("--c", c_values), ("--window", windows), ("--seeds", seeds),
+                             ("--variants", [":".join(v) for v in variants]),
                              ("--points", [f"{format_value(c)}:{w}" for c, w in points])):
             if len(set(values)) != len(values):
                 raise UsageError(f"{name} {' '.join(map(str, values))}: a value is given twice")
@@ -341,16 +366,17 @@ def main(argv: list[str]) -> int:
             raise UsageError("--max-retries and --gpus-per-run must be >= 0, --cpus-per-run positive")
         for token in extra_args:
             for flag in ("--env-id", "--seed", "--total-timesteps", "--ultho-c", "--ultho-window", "--no-ultho",
-                         "--run-name", "--runs-dir", "--resume"):
+                         "--ultho-strategy", "--ultho-credit", "--ultho-scale", "--run-name", "--runs-dir", "--resume"):
                 if token == flag or token.startswith(flag + "="):
                     raise UsageError(f"{flag} after -- is set by the grid; use the grid's own options")
         # Absolute, because a Ray task's working directory is not the driver's.
         out = os.path.abspath(args.out or os.path.join("runs", f"sweep-{args.paper or 'custom'}"))
         grid = {"scripts": [os.path.basename(s) for s in scripts], "env_ids": env_ids, "methods": methods,
-                "c": c_values, "window": windows, "points": [[c, w] for c, w in points], "seeds": seeds,
+                "c": c_values, "window": windows, "points": [[c, w] for c, w in points],
+                "variants": [":".join(v) for v in variants], "seeds": seeds,
                 "total_timesteps": total_timesteps,
                 "extra_args": extra_args}
-        runs = expand(scripts, env_ids, methods, points, seeds, total_timesteps, extra_args, out)
+        runs = expand(scripts, env_ids, methods, points, seeds, total_timesteps, extra_args, out, tuple(variants))
 
         if args.dry_run:
             for run in runs:
@@ -360,7 +386,8 @@ def main(argv: list[str]) -> int:
                 print(f"{len(runs)} runs; steps per run are the scripts' defaults", file=sys.stderr)
             else:
                 steps = total_steps(runs, lambda run: budget)
-                hours = f", {steps / preset.measured_sps / 3600:,.0f} hours at {preset.measured_sps:,.0f} steps/s" \
+                hours = steps / preset.measured_sps / 3600
+                hours = f", {hours:,.{1 if hours < 10 else 0}f} hours at {preset.measured_sps:,.0f} steps/s" \
                     if preset and args.scripts is None else ""
                 print(f"{len(runs)} runs, {steps:,} environment steps{hours}", file=sys.stderr)
             return 0

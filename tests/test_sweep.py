@@ -21,8 +21,8 @@ SCRIPT = "ppo_ultho_minigrid.py"
 TINY = ["--scripts", SCRIPT, "--env-ids", "MiniGrid-Empty-5x5-v0", "--total-timesteps", "512", "--", "--num-envs", "4",
         "--num-steps", "64", "--minibatch-size", "64", "--ultho-clusters", "learning_rate", "minibatch_size=32,64",
         "--eval-episodes", "0"]
-RUN_FIELDS = {"name", "script", "benchmark", "env_id", "method", "c", "window", "seed", "path", "status", "attempts",
-              "error"}
+RUN_FIELDS = {"name", "script", "benchmark", "env_id", "method", "c", "window", "variant", "seed", "path", "status",
+              "attempts", "error"}
 
 
 def index(out) -> dict:
@@ -69,6 +69,19 @@ def test_points_give_the_c_w_pairs_instead_of_the_product(tmp_path):
     assert f"75 runs, {3 * 5 * (1 + 2 + 2 * 2) * 500_000:,} environment steps" in result.stderr
 
 
+def test_variants_name_their_runs_and_pass_their_options(tmp_path):
+    result = run(TOOL, "--paper", "minigrid", "--points", "5:10", "--variants", "ucb:level:none", "ts:improvement:running",
+                 "--env-ids", "MiniGrid-DoorKey-6x6-v0", "--seeds", "1", "--dry-run", "--out", str(tmp_path / "s"))
+    assert result.returncode == 0, result.stderr
+    commands = result.stdout.strip().splitlines()
+    assert len(commands) == 1 + 2 * 2
+    paper = [c for c in commands if "ultho_c5.0_w10__s1" in c]
+    variant = [c for c in commands if "ts-improvement-running_c5.0_w10__s1" in c]
+    assert len(paper) == len(variant) == 2  # the ULTHO run and the relay that reuses it
+    assert not any("--ultho-strategy" in c for c in paper)
+    assert all("--ultho-strategy ts --ultho-credit improvement --ultho-scale running" in c for c in variant)
+
+
 @pytest.fixture(scope="module")
 def local_sweep(tmp_path_factory):
     out = tmp_path_factory.mktemp("local") / "s"
@@ -83,7 +96,7 @@ def test_local_sweep_runs_every_grid_point_and_indexes_it(local_sweep):
     assert record["format"] == 1
     assert record["grid"] == {"scripts": [SCRIPT], "env_ids": ["MiniGrid-Empty-5x5-v0"],
                               "methods": ["ppo", "ultho", "relay"], "c": [5.0], "window": [10],
-                              "points": [[5.0, 10]], "seeds": [1],
+                              "points": [[5.0, 10]], "variants": ["ucb:level:none"], "seeds": [1],
                               "total_timesteps": 512, "extra_args": TINY[TINY.index("--") + 1:]}
     runs = {r["method"]: r for r in record["runs"]}
     assert len(record["runs"]) == 3 and all(set(r) == RUN_FIELDS for r in record["runs"])
@@ -219,6 +232,9 @@ BAD_INPUTS = [
     (["--paper", "minigrid", "--points", "5:10", "--window", "50"], "--points gives the (c, W) pairs itself"),
     (["--paper", "minigrid", "--points", "5:10", "5.0:10"], "--points 5.0:10 5.0:10: a value is given twice"),
     (["--paper", "minigrid", "--points", "nan:10"], "--c must be finite and >= 0"),
+    (["--paper", "minigrid", "--variants", "ts:delta:running"], "'ts:delta:running' is not STRATEGY:CREDIT:SCALE"),
+    (["--paper", "minigrid", "--variants", "ts:level:none", "ts:level:none"], "--variants ts:level:none ts:level:none"),
+    (["--paper", "minigrid", "--", "--ultho-scale", "running"], "--ultho-scale after -- is set by the grid"),
     (["--paper", "minigrid", "--", "--resume", "x"], "--resume after -- is set by the grid"),
 ]
 
