@@ -79,6 +79,7 @@ NORMALIZATION = {
     "minigrid": "the final score as it is (MiniGrid's returns lie in [0, 1])",
 }
 RETURN_TAG = "charts/episodic_return"
+PAPER_VARIANT = "ucb:level:none"
 SCALARS_CSV = "scalars.csv"
 GRID_POINTS = 200
 STEPS = EngFormatter(sep="")
@@ -118,6 +119,7 @@ class Run:
     curve_budget: int = 0  # the steps the curve's run trained for (a relay: its winning run's)
     series: dict[str, np.ndarray] = field(default_factory=dict)  # ultho/* tags -> (T, 2)
     search_space: dict[str, list] | None = None
+    variant: str = "ucb:level:none"  # the bandit's strategy:credit:scale (summary.json; the paper's when absent)
     value_selections: dict[str, list[int]] | None = None  # credited selections of each value (summary.json)
     score: float | None = None  # normalized, set by Study.normalize
     label: str = ""  # the method, set by Study.label_methods
@@ -281,7 +283,8 @@ class Study:
         full_bandit = full.get("bandit") or {}
         run = Run(directory, benchmark, env_id, "relay", full_bandit.get("c"), full_bandit.get("window"), seed,
                   budget, *raw_score(winner, benchmark), eval_score=eval_score(winner),
-                  curve=self.read_scalars(winner_dir).get(RETURN_TAG), curve_budget=int(winner["global_step"]))
+                  curve=self.read_scalars(winner_dir).get(RETURN_TAG), curve_budget=int(winner["global_step"]),
+                  variant=variant_of(full_bandit))
         self.runs.append(run)
 
     def read_summary(self, run_dir: str) -> dict | None:
@@ -321,6 +324,7 @@ class Study:
             eval_score=eval_score(summary), curve=scalars.get(RETURN_TAG), curve_budget=int(summary["global_step"]),
             series={k: v for k, v in scalars.items() if k != RETURN_TAG},
             search_space=bandit["search_space"] if bandit else None,
+            variant=variant_of(bandit or {}),
             value_selections=bandit.get("value_selections") if bandit else None,
         ))
 
@@ -346,11 +350,22 @@ class Study:
             if run.kind == "ppo":
                 run.label = "PPO"
                 continue
-            setting = f" (c={run.c:g}, W={run.window})" if run.c is not None else ""
-            run.label = ("ULTHO" if run.kind == "ultho" else "Relay-ULTHO") + setting
+            strategy = run.variant.split(":")[0]
+            if run.c is None:
+                setting = ""
+            else:  # Thompson sampling and Exp3 do not use c
+                setting = f" (c={run.c:g}, W={run.window})" if strategy == "ucb" else f" (W={run.window})"
+            variant = "" if run.variant == PAPER_VARIANT else " " + run.variant.replace(":", "/")
+            run.label = ("ULTHO" if run.kind == "ultho" else "Relay-ULTHO") + variant + setting
             run.narrowed = bool(run.search_space) and run.search_space != widest[run.benchmark]
             if run.narrowed:
                 run.label += " on " + ", ".join(f"{k}={'/'.join(map(str, v))}" for k, v in run.search_space.items())
+
+
+def variant_of(bandit: dict) -> str:
+    """strategy:credit:scale of a summary's bandit; summaries from before the variants are the paper's."""
+    return ":".join(str(bandit.get(key, default)) for key, default in zip(("strategy", "credit", "scale"),
+                                                                          PAPER_VARIANT.split(":")))
 
 
 def reported_tag(tag: str) -> bool:
@@ -553,7 +568,8 @@ def slug(text: str) -> str:
 
 def method_order(runs: list[Run]) -> list[str]:
     rank = {"ppo": 0, "ultho": 1, "relay": 2}
-    keyed = {run.label: (rank[run.kind], run.c or 0, run.window or 0, run.label) for run in runs}
+    keyed = {run.label: (rank[run.kind], run.variant != PAPER_VARIANT, run.variant, run.c or 0, run.window or 0,
+                         run.label) for run in runs}
     return sorted(keyed, key=keyed.get)
 
 
@@ -726,7 +742,8 @@ def robustness_figure(runs: list[Run], benchmark: str, grid: dict, seed: int, re
                       out: str) -> tuple[str | None, list[str]]:
     """One panel per environment with ULTHO runs: the mean score at each (c, W) with its 95% interval, and PPO.
     Returns (file name, the (c, W) cells of the sweeps' grids without scored runs)."""
-    ultho = [r for r in runs if r.kind == "ultho" and r.score is not None and not r.narrowed]
+    ultho = [r for r in runs if r.kind == "ultho" and r.score is not None and not r.narrowed
+             and r.variant == PAPER_VARIANT]
     envs = sorted({r.env_id for r in ultho})
     if not envs:
         return None, []

@@ -366,3 +366,21 @@ def test_methods_are_aggregated_only_over_the_environments_they_all_cover():
     runs[-1].score = None  # no scored run: in no aggregate
     assert coverage_groups(runs, ["A", "B", "C", "D", "E"]) == [(["x", "y"], ["A", "B"]), (["x"], ["C"]),
                                                                  (["z"], ["D"])]
+
+
+def test_bandit_variants_are_methods_of_their_own(tmp_path):
+    """A Thompson-sampling run beside a paper ULTHO run: its own label (no c, which it does not use), its own row."""
+    jobs = [TINY + SPACE + ["--env-id", ENVS[0], "--seed", "1", "--runs-dir", str(tmp_path / "runs"), "--run-name", name]
+            + extra for name, extra in (("paper", []), ("ts", ["--ultho-strategy", "ts", "--ultho-credit",
+                                                                "improvement", "--ultho-scale", "running"]))]
+    for result in run_concurrently(SCRIPT, jobs):
+        assert result.returncode == 0, result.stderr
+    result = run(REPORT, str(tmp_path / "runs"), "--out", str(tmp_path / "out"), "--reps", "500", "--no-per-run")
+    assert result.returncode == 0, result.stderr
+    rows = table(tmp_path / "out")
+    assert list(rows) == ["ULTHO (c=5, W=10)", "ULTHO ts/improvement/running (W=10)"]
+    assert float(rows["ULTHO ts/improvement/running (W=10)"]["mean"]) == pytest.approx(
+        summary(str(tmp_path / "runs" / "ts"))["final_score"])
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "#### ULTHO ts/improvement/running (W=10)" in report
+    assert "decision_minigrid_ULTHO_ts_improvement_running_W_10.png" in report
