@@ -17,8 +17,8 @@
 
 At the end of every rollout, before SB3 runs ``train()`` on it, the callback credits the previous choice
 with the rollout's mean value estimate (``utility="return"``: its mean GAE return), lets the bandit
-(``ultho_bandit.ULTHO``) select one cluster and one value, and puts that value in force for the coming
-``train()``. Every other setting keeps the value it had. Clusters: ``learning_rate``, ``batch_size``,
+(``ultho_bandit.ULTHO``; extra keyword arguments such as ``strategy``, ``credit`` or ``scale`` go to it) select
+one cluster and one value, and puts that value in force for the coming ``train()``. Every other setting keeps the value it had. Clusters: ``learning_rate``, ``batch_size``,
 ``n_epochs``, ``vf_coef``, ``ent_coef``, ``clip_range``, ``max_grad_norm``, ``gae_lambda``; A2C has no
 ``batch_size``, ``n_epochs`` or ``clip_range``. The bandit's ``scalars()``, the credit and the settings in
 force (``hparams/<name>``) go through SB3's logger, so they appear in the TensorBoard run SB3 writes.
@@ -141,7 +141,9 @@ class ULTHOCallback(BaseCallback):
             by the policy that choice trained; the paper's signal) or ``"return"`` (that rollout's mean GAE
             return).
         verbose: SB3's callback verbosity; 1 prints each choice.
-        **bandit_options: passed on to ``ULTHO(search_space, c=c, window=window, **bandit_options)``.
+        **bandit_options: passed on to ``ULTHO(search_space, c=c, window=window, **bandit_options)``
+            (``strategy``, ``credit``, ``scale``, ``seed``, ...); the utility measured at each rollout's end is
+            also the ``before`` of the next ``select()``, the baseline of ``credit="improvement"``.
 
     Raises:
         ValueError: an unknown cluster, a value a setting cannot take, a bad ``utility`` or a bandit option
@@ -170,7 +172,6 @@ class ULTHOCallback(BaseCallback):
                     raise ValueError(f"ULTHOCallback: cluster {name!r}: value {format_value(value)} is not "
                                      f"{expected}")
         self.utility: Utility = utility
-        self.bandit_options = {"c": c, "window": window, **bandit_options}
         self.chosen: dict[str, Number] = {}
         """The latest value ULTHO chose for each cluster chosen so far (the others keep the model's own)."""
         self.seconds = 0.0
@@ -208,12 +209,14 @@ class ULTHOCallback(BaseCallback):
     def _on_rollout_end(self) -> None:
         tick = time.perf_counter()
         model, buffer = self.model, self.model.rollout_buffer
+        # Measured now, before this rollout's choice takes effect: it credits the previous choice and is the
+        # baseline of the bandit's credit="improvement".
+        measured = float(np.mean(buffer.values if self.utility == "value" else buffer.returns, dtype=np.float64))
         credit = None
         if self.bandit.pending is not None:
-            signal = buffer.values if self.utility == "value" else buffer.returns
-            credit = float(np.mean(signal, dtype=np.float64))
+            credit = measured
             self.bandit.update(credit)
-        name, value = self.bandit.select()
+        name, value = self.bandit.select(before=measured)
         apply_setting(model, name, value)
         self.chosen[name] = value
         if name == "gae_lambda":
@@ -244,30 +247,21 @@ class ULTHOCallback(BaseCallback):
 
     # ------------------------------------------------------------------ saving and loading
     def state_dict(self) -> dict[str, Any]:
-        """Everything :meth:`load` needs, JSON-serialisable: the bandit (a pending choice included), its
-        options, the utility, the values chosen so far and the model's step."""
+        """Everything :meth:`load` needs, JSON-serialisable: the bandit's state (its options and a pending
+        choice included), the utility, the values chosen so far and the model's step."""
         return {
             "format": STATE_FORMAT,
             "kind": "ultho_sb3.ULTHOCallback",
             "num_timesteps": self.model.num_timesteps if hasattr(self, "model") else 0,
             "utility": self.utility,
-            "bandit_options": dict(self.bandit_options),
             "chosen": dict(self.chosen),
             "bandit": self.bandit.state_dict(),
         }
 
     def save(self, path: str | os.PathLike) -> str:
-        """Writes the state atomically beside ``model.save(path)`` (see :func:`state_path`); returns the file.
-
-        Raises:
-            ValueError: a bandit option that JSON cannot hold.
-        """
+        """Writes the state atomically beside ``model.save(path)`` (see :func:`state_path`); returns the file."""
         target = state_path(path)
-        try:
-            atomic_write_json(target, self.state_dict())
-        except (TypeError, ValueError) as err:
-            raise ValueError(f"ULTHOCallback.save: the state cannot be written as JSON ({err}); bandit options "
-                             f"must be plain numbers, strings, lists or dicts") from None
+        atomic_write_json(target, self.state_dict())
         return target
 
     @classmethod
@@ -290,10 +284,9 @@ class ULTHOCallback(BaseCallback):
         if state.get("format") != STATE_FORMAT:
             raise ValueError(f"ULTHOCallback.load: {target} has format {state.get('format')!r}, not {STATE_FORMAT}")
         try:
-            bandit_state = state["bandit"]
-            callback = cls(bandit_state["search_space"], utility=state["utility"], verbose=verbose,
-                           **state["bandit_options"])
-            callback.bandit.load_state_dict(bandit_state)
+            bandit = ULTHO.from_state_dict(state["bandit"])
+            callback = cls(bandit.search_space, utility=state["utility"], verbose=verbose, **bandit.options())
+            callback.bandit = bandit
             chosen = {str(name): value for name, value in state["chosen"].items()}
             steps = state["num_timesteps"]
         except (KeyError, TypeError, AttributeError, ValueError) as err:

@@ -155,29 +155,31 @@ def test_tensorboard_event_file_holds_the_bandit_and_the_settings(ppo_run):
     assert {name: last[f"ultho/count/{name}"] for name in PPO_SPACE} == callback.bandit.selections()
 
 
-def test_credit_is_the_mean_value_estimate_of_the_next_rollout():
+@pytest.mark.parametrize("utility, field, options", [("value", "values", {}), ("return", "returns", {}),
+                                                     ("value", "values", {"credit": "improvement"})])
+def test_credit_is_the_mean_value_estimate_of_the_next_rollout(utility, field, options):
     """Each rollout's end credits the previous choice with the mean of the rollout buffer's values; with
-    utility="return", of its returns. Replaying those credits on a fresh bandit gives the same choices."""
-    for utility, field in (("value", "values"), ("return", "returns")):
-        model = ppo()
-        callback = ULTHOCallback({"vf_coef": [0.25, 0.5, 1.0]}, utility=utility)
-        means: list[float] = []
+    utility="return", of its returns. That mean is also the baseline (select's `before`) of the choice made
+    then, which credit="improvement" subtracts. Replaying the means on a fresh bandit gives the same state."""
+    model = ppo()
+    callback = ULTHOCallback({"vf_coef": [0.25, 0.5, 1.0]}, utility=utility, **options)
+    means: list[float] = []
 
-        class Snapshot(BaseCallback):  # runs after `callback` in the list: sees the buffer it credited
-            def _on_step(self) -> bool:
-                return True
+    class Snapshot(BaseCallback):  # runs after `callback` in the list: sees the buffer it credited
+        def _on_step(self) -> bool:
+            return True
 
-            def _on_rollout_end(self) -> None:
-                means.append(float(np.mean(getattr(self.model.rollout_buffer, field), dtype=np.float64)))
+        def _on_rollout_end(self) -> None:
+            means.append(float(np.mean(getattr(self.model.rollout_buffer, field), dtype=np.float64)))
 
-        model.learn(4 * ROLLOUT, callback=[callback, Snapshot()])
-        replay = ULTHO({"vf_coef": [0.25, 0.5, 1.0]})
-        for k, mean in enumerate(means):
-            if k > 0:
-                replay.update(mean)
-            replay.select()
-        assert replay.state_dict() == callback.bandit.state_dict()
-        assert callback.bandit.num_selections == 4 and sum(callback.bandit.selections().values()) == 3
+    model.learn(4 * ROLLOUT, callback=[callback, Snapshot()])
+    replay = ULTHO({"vf_coef": [0.25, 0.5, 1.0]}, **options)
+    for k, mean in enumerate(means):
+        if k > 0:
+            replay.update(mean)
+        replay.select(before=mean)
+    assert replay.state_dict() == callback.bandit.state_dict()
+    assert callback.bandit.num_selections == 4 and sum(callback.bandit.selections().values()) == 3
 
 
 # ------------------------------------------------------------------------------- each setting, both algorithms
@@ -286,18 +288,21 @@ RESUME_SPACE = {"learning_rate": [1e-4, 1e-3], "batch_size": [16, 32], "gae_lamb
                 "clip_range": [0.1, 0.3]}
 
 
-def test_save_and_load_continue_the_same_training_exactly(tmp_path):
+@pytest.mark.parametrize("options", [{"c": 1.0, "window": 3},
+                                     {"window": 3, "strategy": "ts", "credit": "improvement", "scale": "running"}])
+def test_save_and_load_continue_the_same_training_exactly(options, tmp_path):
     """A training saved after 4 rollouts and loaded (model and callback) goes on exactly as the uninterrupted
-    one: same choices and credits, same final weights. SB3 keeps neither the environments nor the global RNGs
-    in model.save, so the test hands the loaded model the same environment object and restores the RNGs: what
-    is left to differ is what the two files carry."""
+    one: same choices and credits, same final weights; with the paper's bandit and with a variant that draws
+    from its own generator and needs the measured baseline of its pending choice. SB3 keeps neither the
+    environments nor the global RNGs in model.save, so the test hands the loaded model the same environment
+    object and restores the RNGs: what is left to differ is what the two files carry."""
     uninterrupted = ppo(n_epochs=2, seed=3)
-    callback = ULTHOCallback(RESUME_SPACE, c=1.0, window=3)
+    callback = ULTHOCallback(RESUME_SPACE, **options)
     uninterrupted.learn(4 * ROLLOUT, callback=callback)
     uninterrupted.learn(4 * ROLLOUT, callback=callback, reset_num_timesteps=False)
 
     first = ppo(n_epochs=2, seed=3)
-    first_callback = ULTHOCallback(RESUME_SPACE, c=1.0, window=3)
+    first_callback = ULTHOCallback(RESUME_SPACE, **options)
     first.learn(4 * ROLLOUT, callback=first_callback)
     rngs = torch.get_rng_state(), np.random.get_state(), random.getstate()
     env = first.get_env()
@@ -353,13 +358,19 @@ def test_unreadable_or_foreign_state_files_are_refused(tmp_path):
 
 
 def test_bandit_options_are_passed_to_the_bandit_and_kept_by_save(tmp_path):
-    callback = ULTHOCallback({"vf_coef": [0.5, 1.0]}, c=1.0, window=50)
-    assert (callback.bandit.c, callback.bandit.window) == (1.0, 50)
+    """Extra keyword arguments reach ULTHO unchanged, and a saved callback brings them back."""
+    options = {"c": 1.0, "window": 50, "strategy": "exp3", "credit": "improvement", "scale": "running", "seed": 7}
+    callback = ULTHOCallback({"vf_coef": [0.5, 1.0]}, utility="return", **options)
+    assert {k: callback.bandit.options()[k] for k in options} == options
+    ppo().learn(3 * ROLLOUT, callback=callback)
     callback.save(tmp_path / "b.json")
     loaded = ULTHOCallback.load(tmp_path / "b.json")
-    assert (loaded.bandit.c, loaded.bandit.window, loaded.utility) == (1.0, 50, "value")
+    assert loaded.bandit.options() == callback.bandit.options() and loaded.utility == "return"
+    assert loaded.bandit.state_dict() == callback.bandit.state_dict()
     with pytest.raises(TypeError, match="no_such_option"):
         ULTHOCallback({"vf_coef": [0.5]}, no_such_option=1)
+    with pytest.raises(ValueError, match="ULTHOCallback: strategy='greedy'"):
+        ULTHOCallback({"vf_coef": [0.5]}, strategy="greedy")
 
 
 # ------------------------------------------------------------------------------------------------ learning
