@@ -15,6 +15,9 @@
     callback = ULTHOCallback.load("ppo_cartpole")
     model.learn(200_000, callback=callback, reset_num_timesteps=False)   # the same bandit goes on
 
+``ULTHOCallback(space, save_path="ckpt/ppo", save_every=10)`` also checkpoints both every 10 rollouts;
+``latest_checkpoint("ckpt/ppo")`` is the path to load after a crash.
+
 At the end of every rollout, before SB3 runs ``train()`` on it, the callback credits the previous choice
 with the rollout's mean value estimate (``utility="return"``: its mean GAE return), lets the bandit
 (``ultho_bandit.ULTHO``; extra keyword arguments such as ``strategy``, ``credit`` or ``scale`` go to it) select
@@ -30,6 +33,7 @@ rate and the clip range from schedules in every ``train()``), saving and resumin
 from __future__ import annotations
 
 import contextlib
+import glob
 import io
 import json
 import os
@@ -83,6 +87,24 @@ def state_path(path: str | os.PathLike) -> str:
     if path.endswith(".json"):
         return path
     return path.removesuffix(".zip") + STATE_SUFFIX
+
+
+def checkpoint_path(save_path: str | os.PathLike, step: int) -> str:
+    """The path (for ``PPO.load`` and :meth:`ULTHOCallback.load`) of the checkpoint ``save_every`` writes at
+    ``step``: ``<save_path>_<step>_steps``, as SB3's CheckpointCallback names its files."""
+    return f"{os.fspath(save_path)}_{step}_steps"
+
+
+def latest_checkpoint(save_path: str | os.PathLike) -> str | None:
+    """The newest checkpoint under ``save_path`` whose model and bandit are both on disk (a run killed between
+    the two writes leaves the one before), or None."""
+    found = []
+    for state in glob.glob(glob.escape(os.fspath(save_path)) + "_*_steps" + STATE_SUFFIX):
+        base = state.removesuffix(STATE_SUFFIX)
+        step = base.removeprefix(os.fspath(save_path) + "_").removesuffix("_steps")
+        if step.isdigit() and os.path.exists(base + ".zip"):
+            found.append((int(step), base))
+    return max(found)[1] if found else None
 
 
 def _progress_remaining(model: OnPolicyAlgorithm) -> float:
@@ -140,6 +162,9 @@ class ULTHOCallback(BaseCallback):
         utility: what credits a choice: ``"value"`` (the mean value estimate over the next rollout, collected
             by the policy that choice trained; the paper's signal) or ``"return"`` (that rollout's mean GAE
             return).
+        save_path, save_every: every ``save_every`` rollouts (0: never) and when ``learn()`` ends, the model
+            and the bandit are saved at :func:`checkpoint_path` ``(save_path, step)``, each atomically, so a
+            crash or kill loses at most ``save_every`` rollouts; :func:`latest_checkpoint` finds the newest.
         verbose: SB3's callback verbosity; 1 prints each choice.
         **bandit_options: passed on to ``ULTHO(search_space, c=c, window=window, **bandit_options)``
             (``strategy``, ``credit``, ``scale``, ``seed``, ...); the utility measured at each rollout's end is
@@ -153,8 +178,13 @@ class ULTHOCallback(BaseCallback):
     """
 
     def __init__(self, search_space: Mapping[str, Sequence[Number]], c: float = 5.0, window: int = 10,
-                 utility: Utility = "value", verbose: int = 0, **bandit_options: Any) -> None:
+                 utility: Utility = "value", save_path: str | os.PathLike | None = None, save_every: int = 0,
+                 verbose: int = 0, **bandit_options: Any) -> None:
         super().__init__(verbose)
+        if isinstance(save_every, bool) or not isinstance(save_every, int) or save_every < 0:
+            raise ValueError(f"ULTHOCallback: save_every={save_every!r} must be an integer >= 0 (rollouts)")
+        if save_every > 0 and save_path is None:
+            raise ValueError("ULTHOCallback: save_every needs a save_path to write the checkpoints to")
         if isinstance(search_space, Mapping):
             for name in search_space:
                 if name not in _RULES:
@@ -176,7 +206,11 @@ class ULTHOCallback(BaseCallback):
         """The latest value ULTHO chose for each cluster chosen so far (the others keep the model's own)."""
         self.seconds = 0.0
         """Wall time spent in the callback's own work (credit, select, apply, record), for its share of a run."""
+        self.save_path = None if save_path is None else os.fspath(save_path)
+        self.save_every = save_every
         self._saved_at_step: int | None = None  # set by load(): the model must be at this step
+        self._rollouts = 0  # rollout ends seen, for save_every
+        self._checkpointed_step: int | None = None
 
     # ------------------------------------------------------------------ SB3's hooks
     def _init_callback(self) -> None:
@@ -206,6 +240,27 @@ class ULTHOCallback(BaseCallback):
     def _on_step(self) -> bool:
         return True
 
+    def _on_rollout_start(self) -> None:
+        # Between a train() and the next rollout, model and bandit are what learn() would leave if it returned.
+        if self.save_every and self._rollouts and self._rollouts % self.save_every == 0:
+            self._checkpoint()
+
+    def _on_training_end(self) -> None:
+        if self.save_every:
+            self._checkpoint()
+
+    def _checkpoint(self) -> None:
+        """The model, then the bandit, each written atomically, at checkpoint_path(save_path, step)."""
+        step = self.model.num_timesteps
+        if step == self._checkpointed_step:
+            return
+        base = checkpoint_path(self.save_path, step)
+        os.makedirs(os.path.dirname(base) or ".", exist_ok=True)
+        self.model.save(base + ".tmp.zip")
+        os.replace(base + ".tmp.zip", base + ".zip")
+        self.save(base)
+        self._checkpointed_step = step
+
     def _on_rollout_end(self) -> None:
         tick = time.perf_counter()
         model, buffer = self.model, self.model.rollout_buffer
@@ -222,6 +277,7 @@ class ULTHOCallback(BaseCallback):
         if name == "gae_lambda":
             # SB3 computed this rollout's advantages before calling us; redo them with the new lambda.
             buffer.compute_returns_and_advantage(last_values=self.locals["values"], dones=self.locals["dones"])
+        self._rollouts += 1
         self._record(credit)
         if self.verbose >= 1:
             print(f"ULTHO step {model.num_timesteps}: {name}={format_value(value)}"
@@ -254,6 +310,8 @@ class ULTHOCallback(BaseCallback):
             "kind": "ultho_sb3.ULTHOCallback",
             "num_timesteps": self.model.num_timesteps if hasattr(self, "model") else 0,
             "utility": self.utility,
+            "save_path": self.save_path,
+            "save_every": self.save_every,
             "chosen": dict(self.chosen),
             "bandit": self.bandit.state_dict(),
         }
@@ -285,7 +343,8 @@ class ULTHOCallback(BaseCallback):
             raise ValueError(f"ULTHOCallback.load: {target} has format {state.get('format')!r}, not {STATE_FORMAT}")
         try:
             bandit = ULTHO.from_state_dict(state["bandit"])
-            callback = cls(bandit.search_space, utility=state["utility"], verbose=verbose, **bandit.options())
+            callback = cls(bandit.search_space, utility=state["utility"], save_path=state["save_path"],
+                           save_every=state["save_every"], verbose=verbose, **bandit.options())
             callback.bandit = bandit
             chosen = {str(name): value for name, value in state["chosen"].items()}
             steps = state["num_timesteps"]

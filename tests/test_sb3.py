@@ -9,6 +9,11 @@ models constructed with that setting.
 import json
 import os
 import random
+import signal
+import subprocess
+import sys
+import textwrap
+import time
 
 import numpy as np
 import pytest
@@ -18,9 +23,10 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.evaluation import evaluate_policy
 
-from helpers import scalars
+from helpers import REPO, scalars
 from ultho_bandit import ULTHO
-from ultho_sb3 import CLUSTERS, PPO_ONLY, ULTHOCallback, state_path, supported_clusters
+from ultho_sb3 import (CLUSTERS, PPO_ONLY, ULTHOCallback, checkpoint_path, latest_checkpoint, state_path,
+                       supported_clusters)
 
 N_STEPS, N_ENVS = 32, 2
 ROLLOUT = N_STEPS * N_ENVS
@@ -371,6 +377,64 @@ def test_bandit_options_are_passed_to_the_bandit_and_kept_by_save(tmp_path):
         ULTHOCallback({"vf_coef": [0.5]}, no_such_option=1)
     with pytest.raises(ValueError, match="ULTHOCallback: strategy='greedy'"):
         ULTHOCallback({"vf_coef": [0.5]}, strategy="greedy")
+
+
+def test_save_every_checkpoints_model_and_bandit_together(tmp_path):
+    """Every 2 rollouts and at the end: a model and a bandit of the same step, loadable together."""
+    save_path = tmp_path / "ckpt" / "ppo"
+    callback = ULTHOCallback({"vf_coef": [0.5, 1.0], "n_epochs": [1, 2]}, save_path=save_path, save_every=2)
+    ppo().learn(5 * ROLLOUT, callback=callback)
+    steps = [2 * ROLLOUT, 4 * ROLLOUT, 5 * ROLLOUT]
+    assert sorted(os.listdir(tmp_path / "ckpt")) == sorted(
+        os.path.basename(checkpoint_path(save_path, step)) + suffix for step in steps
+        for suffix in (".zip", ".ultho.json"))
+    for step in steps:
+        model = PPO.load(checkpoint_path(save_path, step), device="cpu")
+        loaded = ULTHOCallback.load(checkpoint_path(save_path, step))
+        assert model.num_timesteps == step and loaded.bandit.num_selections == step // ROLLOUT
+        assert {name: getattr(model, name) for name in loaded.chosen} == loaded.chosen
+        assert (loaded.save_path, loaded.save_every) == (str(save_path), 2)
+    assert latest_checkpoint(save_path) == checkpoint_path(save_path, 5 * ROLLOUT)
+    assert latest_checkpoint(tmp_path / "elsewhere") is None
+    with pytest.raises(ValueError, match="save_every needs a save_path"):
+        ULTHOCallback({"vf_coef": [0.5]}, save_every=2)
+    with pytest.raises(ValueError, match="save_every=-1"):
+        ULTHOCallback({"vf_coef": [0.5]}, save_path=save_path, save_every=-1)
+
+
+TRAIN_AND_CHECKPOINT = textwrap.dedent("""
+    import sys
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.env_util import make_vec_env
+    from ultho_sb3 import ULTHOCallback
+    model = PPO("MlpPolicy", make_vec_env("CartPole-v1", n_envs=2, seed=0), n_steps=32, batch_size=64, seed=0,
+                device="cpu")
+    model.learn(10_000 * 64, callback=ULTHOCallback({"vf_coef": [0.5, 1.0]}, save_path=sys.argv[1], save_every=1))
+""")
+
+
+def test_a_killed_training_resumes_from_its_latest_checkpoint(tmp_path):
+    """SIGKILL at any moment leaves a complete model-and-bandit pair at most one interval old (here one
+    rollout), and training goes on from it with the same bandit, still checkpointing."""
+    save_path = str(tmp_path / "ppo")
+    process = subprocess.Popen([sys.executable, "-c", TRAIN_AND_CHECKPOINT, save_path], cwd=REPO,
+                               env={**os.environ, "PYTHONPATH": REPO}, stderr=subprocess.PIPE)
+    deadline = time.time() + 300
+    while not os.path.exists(checkpoint_path(save_path, 3 * ROLLOUT) + ".ultho.json") and time.time() < deadline:
+        assert process.poll() is None, process.stderr.read().decode()
+        time.sleep(0.01)
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    path = latest_checkpoint(save_path)
+    assert path is not None
+    model = PPO.load(path, env=cartpole(), device="cpu")
+    callback = ULTHOCallback.load(path)
+    step = model.num_timesteps
+    assert step >= 3 * ROLLOUT and callback.bandit.num_selections == step // ROLLOUT
+    assert callback.bandit.pending is not None
+    model.learn(2 * ROLLOUT, callback=callback, reset_num_timesteps=False)
+    assert callback.bandit.num_selections == step // ROLLOUT + 2
+    assert latest_checkpoint(save_path) == checkpoint_path(save_path, step + 2 * ROLLOUT)
 
 
 # ------------------------------------------------------------------------------------------------ learning
