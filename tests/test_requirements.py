@@ -12,7 +12,7 @@ REQUIREMENTS = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__fi
 MODULES = {"torch": "torch", "gymnasium": "gymnasium", "numpy": "numpy", "tensorboard": "tensorboard",
            "tyro": "tyro", "tqdm": "tqdm", "ale-py": "ale_py", "procgen-mirror": "procgen", "minigrid": "minigrid",
            "pybullet": "pybullet", "pybullet-envs-gymnasium": "pybullet_envs_gymnasium", "ray": "ray",
-           "matplotlib": "matplotlib", "cffi": "cffi"}
+           "matplotlib": "matplotlib", "cffi": "cffi", "stable-baselines3": "stable_baselines3"}
 
 
 def pins() -> dict[str, str]:
