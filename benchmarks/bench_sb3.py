@@ -7,7 +7,7 @@ drifting machine load hits all alike), each a fresh PPO with the same seed writi
 * PPO + ULTHO, neutral space: every one of the eight clusters, each with PPO's own value as its only candidate.
   The training is identical to PPO's while the callback credits, selects, applies (recomputing GAE whenever it
   picks gae_lambda) and logs 8 clusters' tags every rollout: the difference is the callback's own cost.
-* PPO + ULTHO, the issue's space: learning_rate 1e-4 / 3e-4 / 1e-3 and n_epochs 5 / 10 / 20. The choices change
+* PPO + ULTHO, the README example's space: learning_rate 1e-4 / 3e-4 / 1e-3 and n_epochs 5 / 10 / 20. The choices change
   the work (20 epochs cost twice 10), so this row shows the effect of tuning, not overhead.
 
 The table gives learn()'s wall time (median, min, max), the median's ratio to PPO's, and the share of each run's
@@ -35,7 +35,7 @@ from stable_baselines3 import PPO  # noqa: E402
 from stable_baselines3.common.env_util import make_vec_env  # noqa: E402
 
 TOOL = "bench_sb3"
-ISSUE_SPACE = {"learning_rate": [1e-4, 3e-4, 1e-3], "n_epochs": [5, 10, 20]}
+EXAMPLE_SPACE = {"learning_rate": [1e-4, 3e-4, 1e-3], "n_epochs": [5, 10, 20]}
 
 
 class Parser(argparse.ArgumentParser):
@@ -62,8 +62,8 @@ def one_run(args: argparse.Namespace, space: str | None, logdir: str) -> tuple[f
     callback = None
     if space == "neutral":
         callback = ULTHOCallback({name: [setting_in_force(model, name)] for name in CLUSTERS})
-    elif space == "issue":
-        callback = ULTHOCallback(ISSUE_SPACE)
+    elif space == "example":
+        callback = ULTHOCallback(EXAMPLE_SPACE)
     start = time.perf_counter()
     model.learn(args.total_timesteps, callback=callback)
     return time.perf_counter() - start, callback.seconds if callback is not None else 0.0
@@ -88,7 +88,7 @@ def main() -> None:
         parser.error(f"--env-id {args.env_id!r}: {err}")
     torch.set_num_threads(args.torch_threads)
 
-    rows = {"PPO": None, "PPO + ULTHO, neutral space": "neutral", "PPO + ULTHO, the issue's space": "issue"}
+    rows = {"PPO": None, "PPO + ULTHO, neutral space": "neutral", "PPO + ULTHO, the README example's space": "example"}
     seconds: dict[str, list[float]] = {row: [] for row in rows}
     shares: dict[str, list[float]] = {row: [] for row in rows}
     with tempfile.TemporaryDirectory() as logdir:
