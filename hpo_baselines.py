@@ -147,7 +147,7 @@ def run_trial(config: dict, plan: Plan) -> None:
     settings = plan.settings_of(config)
     record = read_json(record_path) if os.path.isfile(record_path) else None
     checkpoint = tune.get_checkpoint()
-    if record is not None and record["complete"] and checkpoint is not None:
+    if record is not None and record["complete"]:
         # Tune lost the news that this trial finished (killed right after it): report it again, run nothing.
         last = record["segments"][-1]
         tune.report(metrics(last, record))
@@ -362,6 +362,9 @@ def study(args: argparse.Namespace, script_args: list[str], log=print) -> dict:
     os.environ.setdefault("TUNE_DISABLE_AUTO_CALLBACK_LOGGERS", "1")
     os.environ.setdefault("TUNE_DISABLE_STRICT_METRIC_CHECKING", "1")  # no score before the first episode ends
     os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")
+    # Tune saves its experiment state (what a restart continues from) at most once a second rather than every
+    # 10 s or more: a few trials' state is small, and a kill then loses at most the running segments.
+    os.environ.setdefault("TUNE_GLOBAL_CHECKPOINT_S", "1")
     import ray
     from ray import tune
     from ray.tune.logger import CSVLoggerCallback, JsonLoggerCallback
