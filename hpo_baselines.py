@@ -36,6 +36,7 @@ import logging
 import math
 import os
 import random
+import secrets
 import shutil
 import signal
 import subprocess
@@ -80,7 +81,6 @@ class Plan:
     interval: int
     eval_episodes: Optional[int]
     """the user's --eval-episodes, for the final segment (earlier ones evaluate nothing)"""
-    max_retries: int
 
     @property
     def trials_dir(self) -> str:
@@ -195,13 +195,26 @@ def run_trial(config: dict, plan: Plan) -> None:
 
 
 def metrics(segment: dict, record: dict) -> dict:
-    """What a trial reports to Tune. No score while no episode has ended: PBT and PB2 then skip the trial at
-    that perturbation rather than rank a made-up number."""
-    result = {"global_step": segment["end_step"],
-              "steps_run": sum(s["end_step"] - s["start_step"] for s in record["segments"])}
-    if segment["score"] is not None:
-        result[SCORE] = segment["score"]
-    return result
+    """What a trial reports to Tune. Before its first episode has ended a trial has no score: NaN, which Tune's
+    PBT leaves out of the ranking (the trial neither copies nor is copied) while the population stays in step;
+    a missing metric instead would let the trial run ahead of a synchronous population and stall it."""
+    return {"global_step": segment["end_step"], SCORE: math.nan if segment["score"] is None else segment["score"],
+            "steps_run": sum(s["end_step"] - s["start_step"] for s in record["segments"])}
+
+
+def pb2_scheduler():
+    """Tune's PB2, keeping unscored results (NaN) out of its Gaussian process's data, where one NaN would stop
+    the fit; they still count for the population's synchronization, as in PBT."""
+    from ray.tune.schedulers import PopulationBasedTraining
+    from ray.tune.schedulers.pb2 import PB2
+
+    class PB2WithoutUnscored(PB2):
+        def _save_trial_state(self, state, time, result, trial):
+            if math.isnan(result[SCORE]):
+                return PopulationBasedTraining._save_trial_state(self, state, time, result, trial)
+            return super()._save_trial_state(state, time, result, trial)
+
+    return PB2WithoutUnscored
 
 
 def lineage(trials: dict[str, dict], name: str, until: Optional[int] = None) -> list[dict]:
@@ -286,6 +299,10 @@ def checked_plan(args: argparse.Namespace, script_args: list[str], study_dir: st
                              f"got {args.population}")
     if args.max_retries < 0 or args.cpus_per_trial <= 0 or args.gpus_per_trial < 0:
         raise UsageError("--max-retries and --gpus-per-trial must be >= 0, --cpus-per-trial positive")
+    if args.num_cpus is not None and (args.ray_address or args.num_cpus < 1):
+        raise UsageError(f"--num-cpus {args.num_cpus}: it sizes the local Ray instance (at least 1); a cluster "
+                         "at --ray-address has its own" if args.ray_address else f"--num-cpus must be >= 1, got "
+                         f"{args.num_cpus}")
     if not 0 < args.quantile <= 0.5:
         raise UsageError(f"--quantile must be in (0, 0.5], got {args.quantile}")
     if not 0 <= args.resample_probability <= 1:
@@ -328,7 +345,7 @@ def checked_plan(args: argparse.Namespace, script_args: list[str], study_dir: st
                 study_dir=study_dir, seed=args.seed, space=searched,
                 fixed={name: values[0] for name, values in space.items() if len(values) == 1},
                 batch_size=batch_size, final_step=final_step, interval=interval,
-                eval_episodes=int(eval_given[0]) if eval_given else None, max_retries=args.max_retries)
+                eval_episodes=int(eval_given[0]) if eval_given else None)
 
 
 def default_study_dir(args: argparse.Namespace, script_args: list[str]) -> str:
@@ -358,9 +375,13 @@ def study(args: argparse.Namespace, script_args: list[str], log=print) -> dict:
         log(f"[hpo] {study_path} is done; nothing to run")
         return existing
 
+    if not args.ray_address:  # (read when ray is imported)
+        # The local instance gets a token of its own. Left to itself, Ray would write one to ~/.ray/auth_token,
+        # for good, and every later `ray start` on the machine would then demand it.
+        os.environ.setdefault("RAY_AUTH_MODE", "token")
+        os.environ.setdefault("RAY_AUTH_TOKEN", secrets.token_hex(32))
     # Tune's own TensorBoard files would look like runs to ultho_report; its JSON and CSV logs stay.
     os.environ.setdefault("TUNE_DISABLE_AUTO_CALLBACK_LOGGERS", "1")
-    os.environ.setdefault("TUNE_DISABLE_STRICT_METRIC_CHECKING", "1")  # no score before the first episode ends
     os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")
     # Tune saves its experiment state (what a restart continues from) at most once a second rather than every
     # 10 s or more: a few trials' state is small, and a kill then loses at most the running segments.
@@ -369,7 +390,6 @@ def study(args: argparse.Namespace, script_args: list[str], log=print) -> dict:
     from ray import tune
     from ray.tune.logger import CSVLoggerCallback, JsonLoggerCallback
     from ray.tune.schedulers import PopulationBasedTraining
-    from ray.tune.schedulers.pb2 import PB2
     from ray.tune.search.basic_variant import BasicVariantGenerator
 
     os.makedirs(study_dir, exist_ok=True)
@@ -383,9 +403,9 @@ def study(args: argparse.Namespace, script_args: list[str], log=print) -> dict:
 
         def on_trial_result(self, iteration, trials, trial, result, **info):
             atomic_write_json(study_path, study_record(plan, arguments, "running"))
-            score = result.get(SCORE)
+            score = result[SCORE]
             log(f"[hpo] trial_{trial_index(trial.trial_id)} step {result['global_step']}/{plan.final_step}: score "
-                f"{'-' if score is None else f'{score:.4g}'} with "
+                f"{'-' if math.isnan(score) else f'{score:.4g}'} with "
                 + ", ".join(f"{k}={format_value(v)}" for k, v in plan.settings_of(trial.config).items()))
 
     warnings.filterwarnings("ignore", message="Consider boosting PBT performance")  # our trial is a process
@@ -406,12 +426,13 @@ def study(args: argparse.Namespace, script_args: list[str], log=print) -> dict:
                 scheduler = PopulationBasedTraining(
                     time_attr="global_step", perturbation_interval=plan.interval, hyperparam_mutations=plan.space,
                     quantile_fraction=args.quantile, resample_probability=args.resample_probability,
-                    synch=True, require_attrs=False)
+                    synch=True)
             elif args.method == "pb2":
                 param_space = {name: tune.uniform(min(values), max(values)) for name, values in plan.space.items()}
-                scheduler = PB2(time_attr="global_step", perturbation_interval=plan.interval,
-                                hyperparam_bounds={name: [min(v), max(v)] for name, v in plan.space.items()},
-                                quantile_fraction=args.quantile, synch=True, require_attrs=False)
+                scheduler = pb2_scheduler()(
+                    time_attr="global_step", perturbation_interval=plan.interval,
+                    hyperparam_bounds={name: [min(v), max(v)] for name, v in plan.space.items()},
+                    quantile_fraction=args.quantile, synch=True)
             else:
                 param_space = {name: tune.choice(values) for name, values in plan.space.items()}
                 scheduler = None

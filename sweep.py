@@ -160,7 +160,7 @@ def execute(run: Run, max_retries: int, log_path: str) -> tuple[str, int, Option
     """Brings one run to done in this process's machine; returns (status, processes started, error)."""
     os.makedirs(os.path.dirname(log_path), exist_ok=True)
     with open(log_path, "a") as output:
-        if run.method != "relay":
+        if run.method not in ("relay", *HPO_METHODS):
             try:
                 _, attempts = complete_run(resolve_script(run.script), run.args, run.path, max_retries, output)
                 return "done", attempts, None

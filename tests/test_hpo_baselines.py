@@ -18,6 +18,7 @@ STEP = 256  # one iteration: 4 envs x 64 steps; every Empty-5x5 episode (at most
 SPACE = {"learning_rate": [1e-3, 2.5e-3, 5e-3], "minibatch_size": [32, 64, 128], "vf_coef": [0.25, 0.5, 1.0]}
 SCRIPT_ARGS = ["--env-id", "MiniGrid-Empty-5x5-v0", "--num-envs", "4", "--num-steps", "64", "--minibatch-size", "64",
                "--ultho-clusters", "learning_rate", "minibatch_size=32,64,128", "vf_coef", "--eval-episodes", "2"]
+RAY_TOKEN_FILE = os.path.expanduser("~/.ray/auth_token")
 FLAGS = {"learning_rate": "--learning-rate", "minibatch_size": "--minibatch-size", "vf_coef": "--vf-coef"}
 STUDY_FIELDS = {"format", "tool", "status", "method", "script", "script_args", "seed", "population", "samples",
                 "interval", "quantile", "resample_probability", "search_space", "fixed_settings", "budget",
@@ -78,8 +79,12 @@ def assert_scores_recorded(record: dict) -> None:
 @pytest.fixture(scope="module")
 def pbt_study(tmp_path_factory):
     study_dir = tmp_path_factory.mktemp("pbt") / "s"
+    token_before = os.path.exists(RAY_TOKEN_FILE)
     result = study(study_dir, "--method", "pbt", "--population", "3", "--keep-checkpoints", "0")
     assert result.returncode == 0, result.stdout + result.stderr
+    # The local Ray instance had a token of its own: Ray leaves none in the home directory, where every later
+    # `ray start` on the machine would demand it.
+    assert os.path.exists(RAY_TOKEN_FILE) == token_before
     return study_dir, result
 
 
@@ -232,6 +237,8 @@ BAD_INPUTS = [
     (["--method", "pbt", "--population", "4", "--", "--init-from", "x"], "--init-from is set by hpo_baselines.py"),
     (["--method", "pbt", "--population", "4", "--quantile", "0.7"], "--quantile must be in (0, 0.5], got 0.7"),
     (["--method", "pbt", "--population", "4", "--bogus"], "unrecognized arguments: --bogus"),
+    (["--method", "pbt", "--population", "4", "--num-cpus", "2", "--ray-address", "127.0.0.1:1"],
+     "--num-cpus 2: it sizes the local Ray instance"),
 ]
 
 
