@@ -54,8 +54,9 @@ from ultho_bandit import format_value
 TOOL = "hpo_baselines.py"
 STUDY_FORMAT = 1
 METHODS = ("pbt", "pb2", "random")
-OWNED_FLAGS = ("--seed", "--init-from")
-"""Script flags the tool sets per trial, on top of relay_ultho's (--no-ultho, --run-name, --runs-dir, --resume)."""
+OWNED_FLAGS = ("--seed",)
+"""Script flags the tool sets per trial, on top of relay_ultho's (--no-ultho, --run-name, --runs-dir, --resume,
+--init-from)."""
 SCORE = "score"
 TRIAL_RECORD = "hpo_trial.json"
 CHECKPOINT_RECORD = "hpo_checkpoint.json"
@@ -154,8 +155,9 @@ def run_trial(config: dict, plan: Plan) -> None:
         return
     start_step, init_from, origin = 0, None, None
     if checkpoint is not None:
-        os.makedirs(os.path.join(plan.study_dir, "tmp"), exist_ok=True)
-        init_from = checkpoint.to_directory(tempfile.mkdtemp(prefix=f"{name}-", dir=os.path.join(plan.study_dir, "tmp")))
+        scratch = os.path.join(plan.study_dir, "tmp")
+        os.makedirs(scratch, exist_ok=True)
+        init_from = checkpoint.to_directory(tempfile.mkdtemp(prefix=f"{name}-", dir=scratch))
         origin = read_json(os.path.join(init_from, CHECKPOINT_RECORD))
         start_step = origin["step"]
     elif os.path.exists(run_dir):
@@ -266,7 +268,8 @@ def study_record(plan: Plan, arguments: dict, status: str) -> dict:
         "best_settings_schedule": lineage(trials, best) if best else None,
         "max_observed_score": max(observed, key=lambda o: o["score"]) if observed else None,
         "exploits": exploits,
-        "trials": [{"name": n, "seed": r["seed"], "run_dir": relative_to(os.path.join(plan.trials_dir, n), plan.study_dir),
+        "trials": [{"name": n, "seed": r["seed"],
+                    "run_dir": relative_to(os.path.join(plan.trials_dir, n), plan.study_dir),
                     "complete": r["complete"], "settings": r["segments"][-1]["settings"] if r["segments"] else None,
                     "final_score": r["segments"][-1]["score"] if r["complete"] else None,
                     "steps_run": sum(s["end_step"] - s["start_step"] for s in r["segments"]),
@@ -368,7 +371,8 @@ def study(args: argparse.Namespace, script_args: list[str], log=print) -> dict:
                  "resample_probability": args.resample_probability}
     study_path = os.path.join(study_dir, "study.json")
     existing = read_json(study_path) if os.path.isfile(study_path) else None
-    if existing is not None and {k: existing.get(k) for k in [*arguments, "method"]} != {**arguments, "method": args.method}:
+    given = {**arguments, "method": args.method}
+    if existing is not None and {k: existing.get(k) for k in given} != given:
         raise UsageError(f"{study_dir} holds a study of other arguments: {existing['method']} of {existing['script']} "
                          f"{' '.join(existing['script_args'])}")
     if existing is not None and existing["status"] == "done":
@@ -511,11 +515,13 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
                         help="run the trials on this running Ray cluster (default: a local Ray instance)")
     parser.add_argument("--num-cpus", type=int, metavar="N",
                         help="CPUs of the local Ray instance (default: the machine's)")
-    parser.add_argument("--cpus-per-trial", type=float, default=1, metavar="N", help="CPUs a trial reserves (default 1)")
+    parser.add_argument("--cpus-per-trial", type=float, default=1, metavar="N",
+                        help="CPUs a trial reserves (default 1)")
     parser.add_argument("--gpus-per-trial", type=float, default=0, metavar="N",
                         help="GPUs a trial reserves, fractions allowed (default 0)")
     parser.add_argument("--keep-checkpoints", type=int, default=3, metavar="N",
-                        help="Tune checkpoints kept per trial, the newest (default 3, the fewest Tune advises for PBT; 0 keeps all)")
+                        help="Tune checkpoints kept per trial, the newest (default 3, the fewest Tune advises for "
+                             "PBT; 0 keeps all)")
     parser.add_argument("--max-retries", type=int, default=2, metavar="N",
                         help="times a failed trial restarts from its last checkpoint (default 2)")
     parser.add_argument("--quiet", action="store_true", help="print nothing but errors")

@@ -374,7 +374,7 @@ def main(argv: list[str]) -> int:
             raise UsageError("--max-retries and --gpus-per-run must be >= 0, --cpus-per-run positive")
         for token in extra_args:
             for flag in ("--env-id", "--seed", "--total-timesteps", "--ultho-c", "--ultho-window", "--no-ultho",
-                         "--run-name", "--runs-dir", "--resume"):
+                         "--run-name", "--runs-dir", "--resume", "--init-from"):
                 if token == flag or token.startswith(flag + "="):
                     raise UsageError(f"{flag} after -- is set by the grid; use the grid's own options")
         # Absolute, because a Ray task's working directory is not the driver's.

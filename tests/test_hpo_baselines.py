@@ -64,7 +64,8 @@ def assert_trials_followed_their_records(study_dir, record: dict) -> None:
                         for step in range(segment["start_step"] + STEP, segment["end_step"] + 1, STEP)]
             assert [(s, pytest.approx(v)) for s, v in expected] == series[f"hparams/{name}"], (trial["name"], name)
         # The optimizer's own learning rate followed the schedule too.
-        assert [v for _, v in series["charts/learning_rate"]] == pytest.approx([v for _, v in series["hparams/learning_rate"]])
+        learning_rates = [v for _, v in series["hparams/learning_rate"]]
+        assert [v for _, v in series["charts/learning_rate"]] == pytest.approx(learning_rates)
 
 
 def assert_scores_recorded(record: dict) -> None:
@@ -160,7 +161,8 @@ def test_pb2_and_random_search_run_to_completion(tmp_path):
     pb2 = study(tmp_path / "pb2", "--method", "pb2", "--population", "3")
     assert pb2.returncode == 0, pb2.stdout + pb2.stderr
     record = read(tmp_path / "pb2" / "study.json")
-    assert set(record) == STUDY_FIELDS and (record["status"], record["method"], record["population"]) == ("done", "pb2", 3)
+    assert set(record) == STUDY_FIELDS
+    assert (record["status"], record["method"], record["population"]) == ("done", "pb2", 3)
     assert record["budget"] == {"steps_per_trial": 1024, "trials": 3, "total_steps": 3 * 1024, "interval": 512}
     assert len(record["exploits"]) >= 1
     for trial in record["trials"]:
@@ -175,7 +177,8 @@ def test_pb2_and_random_search_run_to_completion(tmp_path):
     rs = study(tmp_path / "random", "--method", "random", "--samples", "2")
     assert rs.returncode == 0, rs.stdout + rs.stderr
     record = read(tmp_path / "random" / "study.json")
-    assert set(record) == STUDY_FIELDS and (record["status"], record["method"], record["samples"]) == ("done", "random", 2)
+    assert set(record) == STUDY_FIELDS
+    assert (record["status"], record["method"], record["samples"]) == ("done", "random", 2)
     assert record["budget"] == {"steps_per_trial": 1024, "trials": 2, "total_steps": 2 * 1024, "interval": 512}
     assert record["exploits"] == []
     for trial in record["trials"]:

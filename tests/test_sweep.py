@@ -250,6 +250,7 @@ BAD_INPUTS = [
     (["--paper", "minigrid", "--points", "5:10", "5.0:10"], "--points 5.0:10 5.0:10: a value is given twice"),
     (["--paper", "minigrid", "--points", "nan:10"], "--c must be finite and >= 0"),
     (["--paper", "minigrid", "--", "--resume", "x"], "--resume after -- is set by the grid"),
+    (["--paper", "minigrid", "--", "--init-from", "x"], "--init-from after -- is set by the grid"),
 ]
 
 
