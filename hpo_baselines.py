@@ -204,19 +204,38 @@ def metrics(segment: dict, record: dict) -> dict:
             "steps_run": sum(s["end_step"] - s["start_step"] for s in record["segments"])}
 
 
-def pb2_scheduler():
-    """Tune's PB2, keeping unscored results (NaN) out of its Gaussian process's data, where one NaN would stop
-    the fit; they still count for the population's synchronization, as in PBT."""
+def schedulers() -> tuple[type, type]:
+    """Tune's synchronous PBT and PB2, with two repairs.
+
+    Tune sets the next synchronization point to max(last point + interval, the furthest trial). After a
+    restart the scheduler is new (its first point is one interval) while the trials are further on, so that
+    point equals the step the population has reached and no paused trial is ever started again; here it is
+    always an interval beyond the furthest trial. And PB2 keeps unscored results (NaN) out of its Gaussian
+    process's data, where one NaN would stop the fit; they still count for the synchronization, as in PBT.
+    """
     from ray.tune.schedulers import PopulationBasedTraining
     from ray.tune.schedulers.pb2 import PB2
 
-    class PB2WithoutUnscored(PB2):
+    class Resynchronizing:
+        def on_trial_result(self, tune_controller, trial, result):
+            point = self._next_perturbation_sync
+            decision = super().on_trial_result(tune_controller, trial, result)
+            if self._next_perturbation_sync != point:  # the population has just been synchronized
+                furthest = max(state.last_train_time for state in self._trial_state.values())
+                self._next_perturbation_sync = max(self._next_perturbation_sync,
+                                                   furthest + self._perturbation_interval)
+            return decision
+
+    class PBTStudy(Resynchronizing, PopulationBasedTraining):
+        pass
+
+    class PB2Study(Resynchronizing, PB2):
         def _save_trial_state(self, state, time, result, trial):
             if math.isnan(result[SCORE]):
                 return PopulationBasedTraining._save_trial_state(self, state, time, result, trial)
             return super()._save_trial_state(state, time, result, trial)
 
-    return PB2WithoutUnscored
+    return PBTStudy, PB2Study
 
 
 def lineage(trials: dict[str, dict], name: str, until: Optional[int] = None) -> list[dict]:
@@ -393,7 +412,6 @@ def study(args: argparse.Namespace, script_args: list[str], log=print) -> dict:
     import ray
     from ray import tune
     from ray.tune.logger import CSVLoggerCallback, JsonLoggerCallback
-    from ray.tune.schedulers import PopulationBasedTraining
     from ray.tune.search.basic_variant import BasicVariantGenerator
 
     os.makedirs(study_dir, exist_ok=True)
@@ -425,15 +443,16 @@ def study(args: argparse.Namespace, script_args: list[str], log=print) -> dict:
             log(f"[hpo] continuing the study in {study_dir}")
             tuner = tune.Tuner.restore(tune_dir, trainable=trainable, resume_unfinished=True, resume_errored=True)
         else:
+            pbt_scheduler, pb2_scheduler = schedulers()
             if args.method == "pbt":
                 param_space = {name: tune.choice(values) for name, values in plan.space.items()}
-                scheduler = PopulationBasedTraining(
+                scheduler = pbt_scheduler(
                     time_attr="global_step", perturbation_interval=plan.interval, hyperparam_mutations=plan.space,
                     quantile_fraction=args.quantile, resample_probability=args.resample_probability,
                     synch=True)
             elif args.method == "pb2":
                 param_space = {name: tune.uniform(min(values), max(values)) for name, values in plan.space.items()}
-                scheduler = pb2_scheduler()(
+                scheduler = pb2_scheduler(
                     time_attr="global_step", perturbation_interval=plan.interval,
                     hyperparam_bounds={name: [min(v), max(v)] for name, v in plan.space.items()},
                     quantile_fraction=args.quantile, synch=True)

@@ -223,6 +223,36 @@ def test_killed_study_started_again_finishes_without_rerunning_finished_trials(t
     assert again.returncode == 0 and "is done; nothing to run" in again.stdout
 
 
+def test_killed_pbt_study_started_again_goes_on_in_step(tmp_path):
+    """After a restart Tune's scheduler is new while the trials are an interval or more into the budget: the
+    population must still be synchronized at every later interval, and the exploit made before the kill kept."""
+    study_dir = tmp_path / "s"
+    args = [TOOL, SCRIPT, "--method", "pbt", "--population", "2", "--interval", str(2 * STEP), "--study-dir",
+            str(study_dir), "--num-cpus", "2", "--", *SCRIPT_ARGS, "--total-timesteps", str(6 * STEP)]
+    process = subprocess.Popen([sys.executable, *args], cwd=REPO, stdout=subprocess.DEVNULL,
+                               stderr=subprocess.DEVNULL, start_new_session=True)
+    records = [study_dir / "trials" / f"trial_{k}" / "hpo_trial.json" for k in (0, 1)]
+    deadline = time.time() + 600
+    while not all(r.exists() for r in records) and process.poll() is None and time.time() < deadline:
+        time.sleep(0.05)
+    time.sleep(3)  # into the second interval
+    os.killpg(process.pid, signal.SIGKILL)
+    process.wait()
+    assert not any(read(r)["complete"] for r in records), "killed too late"
+
+    result = run(*args, timeout=900)
+    assert result.returncode == 0, result.stdout + result.stderr
+    record = read(study_dir / "study.json")
+    assert record["status"] == "done" and record["budget"]["total_steps"] == 2 * 1536
+    for trial in record["trials"]:
+        assert [(s["start_step"], s["end_step"]) for s in trial["segments"]] == [(0, 512), (512, 1024), (1024, 1536)]
+    # The perturbation after the restart (step 1024) has one trial copying the other; the one at 512 is kept
+    # when Tune had saved it before the kill, else that trial went on from its own checkpoint.
+    steps = sorted(e["step"] for e in record["exploits"])
+    assert steps in ([1024], [512, 1024]), steps
+    assert_trials_followed_their_records(study_dir, record)
+
+
 BAD_INPUTS = [
     (["--method", "hyperband"], "--method hyperband: not one of pbt, pb2, random"),
     (["--method", "pbt", "--population", "1"], "--population must be >= 2 for pbt"),
