@@ -167,6 +167,9 @@ class Args:
     """iterations between checkpoints (one is also written at the end)"""
     resume: Optional[str] = None
     """run directory to continue to its --total-timesteps; its checkpoint's settings are used"""
+    init_from: Optional[str] = None
+    """run directory whose checkpoint this run starts from: network, optimizer state, reward normalization, the games in progress and counters are
+    taken from it, every setting from this command line (docs/hpo_baselines.md)"""
     quiet: bool = False
     """print nothing but errors"""
 
@@ -222,24 +225,43 @@ def check_setting(name: str, value, batch_size: int, where: str) -> None:
         raise UsageError(f"{where}: {name} must be >= 0, got {value!r}")
 
 
+def load_checkpoint(run_dir: str, flag: str) -> dict:
+    path = os.path.join(run_dir, "checkpoint.pt")
+    if not os.path.isfile(path):
+        raise UsageError(f"{flag} {run_dir}: no checkpoint.pt there")
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as err:  # noqa: BLE001  (any unreadable file is bad input)
+        raise UsageError(f"{flag} {run_dir}: checkpoint.pt is unreadable ({err.__class__.__name__})")
+    if not isinstance(checkpoint, dict) or checkpoint.get("script") != SCRIPT:
+        raise UsageError(f"{flag} {run_dir}: checkpoint.pt is not a {SCRIPT} checkpoint")
+    if checkpoint.get("format") != CHECKPOINT_FORMAT:
+        raise UsageError(f"{flag} {run_dir}: checkpoint format {checkpoint.get('format')!r} is not supported")
+    return checkpoint
+
+
 def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
-    """Checks everything before any file is written or environment started; returns (space, checkpoint)."""
+    """Checks everything before any file is written or environment started; returns (space, checkpoint), the
+    checkpoint of --resume or of --init-from."""
     checkpoint = None
+    if args.resume is not None and args.init_from is not None:
+        raise UsageError("--resume and --init-from exclude each other: --resume continues a run with its own settings")
     if args.resume is not None:
-        path = os.path.join(args.resume, "checkpoint.pt")
-        if not os.path.isfile(path):
-            raise UsageError(f"--resume {args.resume}: no checkpoint.pt there")
-        try:
-            checkpoint = torch.load(path, map_location="cpu", weights_only=False)
-        except Exception as err:  # noqa: BLE001  (any unreadable file is bad input)
-            raise UsageError(f"--resume {args.resume}: checkpoint.pt is unreadable ({err.__class__.__name__})")
-        if not isinstance(checkpoint, dict) or checkpoint.get("script") != SCRIPT:
-            raise UsageError(f"--resume {args.resume}: checkpoint.pt is not a {SCRIPT} checkpoint")
-        if checkpoint.get("format") != CHECKPOINT_FORMAT:
-            raise UsageError(f"--resume {args.resume}: checkpoint format {checkpoint.get('format')!r} is not supported")
+        checkpoint = load_checkpoint(args.resume, "--resume")
         resumed = Args(**checkpoint["config"])
         resumed.resume, resumed.quiet, resumed.cuda, resumed.torch_threads = args.resume, args.quiet, args.cuda, args.torch_threads
         args.__dict__.update(resumed.__dict__)
+    elif args.init_from is not None:
+        checkpoint = load_checkpoint(args.init_from, "--init-from")
+        source = checkpoint["config"]
+        # What the carried-over state was made with: the games being replayed, the rollout's shape.
+        for name in ("env_id", "num_envs", "num_steps", "repeat_action_probability", "noop_max", "episodic_life"):
+            if getattr(args, name) != source[name]:
+                raise UsageError(f"--init-from {args.init_from}: its {name} is {source[name]!r}, this run's "
+                                 f"--{name.replace('_', '-')} {getattr(args, name)!r}")
+        if args.total_timesteps // (args.num_envs * args.num_steps) <= checkpoint["iteration"]:
+            raise UsageError(f"--total-timesteps {args.total_timesteps}: the checkpoint of --init-from "
+                             f"{args.init_from} is already at step {checkpoint['global_step']}")
     if game_rom(args.env_id) is None:
         raise UsageError(f"--env-id {args.env_id}: no such ALE game (a name like BattleZone, a ROM id like "
                          f"battle_zone, or a Gymnasium id like ALE/BattleZone-v5)")
@@ -273,13 +295,21 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
             raise UsageError(f"--ultho-window must be >= 1, got {args.ultho_window}")
         if not (math.isfinite(args.ultho_exp3_eta) and args.ultho_exp3_eta > 0):
             raise UsageError(f"--ultho-exp3-eta must be a finite number > 0, got {args.ultho_exp3_eta}")
-    if checkpoint is None:
+    if args.resume is None:
         if os.sep in run_name(args) or run_name(args) in ("", ".", ".."):
             raise UsageError(f"--run-name {args.run_name!r} is not a plain directory name")
         run_dir = os.path.join(args.runs_dir, run_name(args))
-        if os.path.exists(run_dir):
+        # --init-from may continue a run of this script in its own directory (its logs go on from the checkpoint).
+        if os.path.exists(run_dir) and not (args.init_from is not None and is_run_of_this_script(run_dir)):
             raise UsageError(f"run directory {run_dir} already exists: pass --resume {run_dir} or another --run-name")
     return space, checkpoint
+
+
+def is_run_of_this_script(run_dir: str) -> bool:
+    try:
+        return torch.load(os.path.join(run_dir, "checkpoint.pt"), map_location="cpu", weights_only=False)["script"] == SCRIPT
+    except Exception:  # noqa: BLE001  (missing or foreign: not a run to continue)
+        return False
 
 
 def run_name(args: Args) -> str:
@@ -456,8 +486,9 @@ def main(args: Args) -> None:
     batch_size = args.num_envs * args.num_steps
     num_iterations = args.total_timesteps // batch_size
     # The run's settings before ULTHO changes any; a resumed run keeps its original ones.
-    config = checkpoint["config"] if checkpoint is not None else dataclasses.asdict(args)
-    run_dir = args.resume if checkpoint is not None else os.path.join(args.runs_dir, run_name(args))
+    resumed = args.resume is not None
+    config = checkpoint["config"] if resumed else dataclasses.asdict(args)
+    run_dir = args.resume if resumed else os.path.join(args.runs_dir, run_name(args))
     checkpoint_path = os.path.join(run_dir, "checkpoint.pt")
     quiet = args.quiet
 
@@ -487,11 +518,12 @@ def main(args: Args) -> None:
     if checkpoint is not None:
         agent.load_state_dict(checkpoint["agent"])
         optimizer.load_state_dict(checkpoint["optimizer"])
-        if bandit is not None:
-            bandit.load_state_dict(checkpoint["bandit"])
-        for name, value in checkpoint["settings"].items():
-            setattr(args, name, value)
-        # The optimizer's saved state carries the learning rate it had; re-apply the setting in force.
+        if resumed:  # --init-from keeps this command line's settings and starts its own bandit
+            if bandit is not None:
+                bandit.load_state_dict(checkpoint["bandit"])
+            for name, value in checkpoint["settings"].items():
+                setattr(args, name, value)
+        # The optimizer's saved state carries the learning rate it had; apply the setting in force.
         for group in optimizer.param_groups:
             group["lr"] = args.learning_rate
         start_iteration = checkpoint["iteration"] + 1
@@ -500,12 +532,14 @@ def main(args: Args) -> None:
         return_rms.__dict__.update(checkpoint["return_rms"])
         recent_returns.extend(checkpoint["recent_returns"])
         recent_lengths.extend(checkpoint["recent_lengths"])
-        random.setstate(checkpoint["rng"]["python"])
-        np.random.set_state(checkpoint["rng"]["numpy"])
-        torch.set_rng_state(checkpoint["rng"]["torch"])
-        if device.type == "cuda" and checkpoint["rng"]["cuda"] is not None:
-            torch.cuda.set_rng_state_all(checkpoint["rng"]["cuda"])  # actions are sampled on the device
-        minibatch_rng.bit_generator.state = checkpoint["rng"]["minibatch"]
+        # --init-from with another seed (a PBT trial copying another) draws from its own seed from here on.
+        if resumed or checkpoint["config"]["seed"] == args.seed:
+            random.setstate(checkpoint["rng"]["python"])
+            np.random.set_state(checkpoint["rng"]["numpy"])
+            torch.set_rng_state(checkpoint["rng"]["torch"])
+            if device.type == "cuda" and checkpoint["rng"]["cuda"] is not None:
+                torch.cuda.set_rng_state_all(checkpoint["rng"]["cuda"])  # actions are sampled on the device
+            minibatch_rng.bit_generator.state = checkpoint["rng"]["minibatch"]
 
     # Every game starts from its own seed and its actions are kept until it ends: a resumed run replays the
     # games in progress at the checkpoint and goes on exactly as an uninterrupted run.
@@ -531,9 +565,11 @@ def main(args: Args) -> None:
     lives = info["lives"]
 
     os.makedirs(run_dir, exist_ok=True)
+    if not resumed and os.path.exists(os.path.join(run_dir, "summary.json")):
+        os.remove(os.path.join(run_dir, "summary.json"))  # --init-from in place: the run is no longer finished
     # purge_step drops events a killed process logged after its last checkpoint.
     writer = SummaryWriter(run_dir, purge_step=global_step + 1 if checkpoint is not None else None)
-    if checkpoint is None:
+    if not resumed:
         writer.add_text(
             "hyperparameters",
             "|param|value|\n|-|-|\n" + "\n".join(f"|{k}|{v}|" for k, v in config.items()),

@@ -31,7 +31,7 @@ from ultho_bandit import clusters_of_interest, format_value
 
 TOOL = "relay_ultho.py"
 RELAY_FORMAT = 1
-OWNED_FLAGS = ("--no-ultho", "--run-name", "--runs-dir", "--resume")
+OWNED_FLAGS = ("--no-ultho", "--run-name", "--runs-dir", "--resume", "--init-from")
 """Script flags the tools set themselves; a user passing one would break the resume logic."""
 
 RunState = Literal["done", "resumable", "fresh"]
@@ -295,7 +295,8 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
                "  python relay_ultho.py ppo_ultho_procgen.py -- --env-id starpilot --seed 1\n"
                "  python relay_ultho.py ppo_ultho_minigrid.py --from runs/<a finished ULTHO run>\n"
                "  python relay_ultho.py ppo_ultho_minigrid.py --relay-dir runs/relay-doorkey -- --ultho-c 1 --ultho-window 50\n"
-               "\nThe tool sets the script's --runs-dir, --run-name and --resume itself; --no-ultho is refused.",
+               "\nThe tool sets the script's --runs-dir, --run-name and --resume itself; --no-ultho and --init-from "
+               "are refused.",
     )
     parser.add_argument("script", help="the training script, e.g. ppo_ultho_minigrid.py")
     parser.add_argument("--from", dest="from_run", metavar="RUN_DIR",

@@ -1,7 +1,8 @@
 """The paper's experiment grids, from one machine to a Ray cluster.
 
 A grid (scripts x environment ids x methods x seeds, with every (c, W) for ULTHO) expands into runs, each
-a deterministic directory under ``<out>/runs`` (a relay: ``<out>/relays``), so the same command always
+a deterministic directory under ``<out>/runs`` (a relay: ``<out>/relays``; a PBT, PB2 or random-search study
+of ``hpo_baselines.py``: ``<out>/studies``), so the same command always
 names the same runs. Started again, a sweep skips every run that has its ``summary.json`` (a relay: its
 ``relay.json`` with status done), resumes interrupted or failed runs from their checkpoints with a bounded
 number of retries, and starts afresh only what never checkpointed. ``<out>/sweep.json`` maps every run to
@@ -30,7 +31,10 @@ from ultho_bandit import CREDITS, SCALES, STRATEGIES, format_value
 TOOL = "sweep.py"
 SWEEP_FORMAT = 1
 RELAY_TOOL = os.path.join(os.path.dirname(os.path.abspath(__file__)), "relay_ultho.py")
-METHODS = ("ppo", "ultho", "relay")
+HPO_TOOL = os.path.join(os.path.dirname(os.path.abspath(__file__)), "hpo_baselines.py")
+METHODS = ("ppo", "ultho", "relay", "pbt", "pb2", "random")
+HPO_METHODS = ("pbt", "pb2", "random")
+"""Studies of hpo_baselines.py: --population trials of the budget each."""
 PAPER_VARIANT = ("ucb", "level", "none")
 """(strategy, credit, scale): the paper's bandit; other variants add --ultho-strategy/credit/scale to their runs"""
 
@@ -75,7 +79,9 @@ class Run:
     path: str
     """the run directory (a relay: the relay directory)"""
     args: list[str]
-    """the script's arguments (a relay: those after --)"""
+    """the script's arguments (a relay or a study: those after --)"""
+    tool_args: list[str] = field(default_factory=list)
+    """a study's options for hpo_baselines.py (method, population, seed, where Ray is)"""
     source: Optional["Run"] = None
     """a relay's full ULTHO run, reused with --from when the grid has it"""
     variant: Optional[str] = None
@@ -91,8 +97,8 @@ class Run:
         return stem.removeprefix("ppo_ultho_")
 
     def is_done(self) -> bool:
-        if self.method == "relay":
-            record = read_json(os.path.join(self.path, "relay.json"))
+        if self.method in ("relay", *HPO_METHODS):
+            record = read_json(os.path.join(self.path, "relay.json" if self.method == "relay" else "study.json"))
             return record is not None and record["status"] == "done"
         return run_state(self.path) == "done"
 
@@ -101,18 +107,26 @@ class Run:
         return [sys.executable, RELAY_TOOL, self.script, *source, "--relay-dir", self.path,
                 "--max-retries", str(max_retries), "--quiet", "--", *self.args]
 
+    def study_command(self) -> list[str]:
+        return [sys.executable, HPO_TOOL, self.script, *self.tool_args, "--study-dir", self.path, "--quiet", "--",
+                *self.args]
+
     def command(self) -> list[str]:
         """What runs first (dry run); retries use --resume."""
         if self.method == "relay":
             return self.relay_command(0)
+        if self.method in HPO_METHODS:
+            return self.study_command()
         return script_command(self.script, self.args, self.path, resume=False)
 
 
 def expand(scripts: list[str], env_ids: list[str], methods: list[str], points: list[tuple[float, int]],
            seeds: list[int], total_timesteps: Optional[int], extra_args: list[str], out: str,
-           variants: tuple[tuple[str, str, str], ...] = (PAPER_VARIANT,)) -> list[Run]:
+           variants: tuple[tuple[str, str, str], ...] = (PAPER_VARIANT,), population: int = 4,
+           study_resources: tuple[str, ...] = ()) -> list[Run]:
     """Every grid point in a fixed order; a relay follows the ULTHO run it reuses. ``points``: the (c, W);
-    ``variants``: the (strategy, credit, scale) of the bandit."""
+    ``variants``: the (strategy, credit, scale) of the bandit; ``study_resources``: where a study's Ray runs
+    its trials (--ray-address or --num-cpus)."""
     runs = []
     budget = ["--total-timesteps", str(total_timesteps)] if total_timesteps is not None else []
     for script, env_id, seed in itertools.product(scripts, env_ids, seeds):
@@ -142,6 +156,12 @@ def expand(scripts: list[str], env_ids: list[str], methods: list[str], points: l
                 runs.append(relay)
                 if ultho is not None:
                     ultho.dependents.append(relay)
+        for method in (m for m in HPO_METHODS if m in methods):
+            name = f"{prefix}__{method}__s{seed}"
+            size = ["--samples" if method == "random" else "--population", str(population)]
+            runs.append(Run(name, script, env_id, method, None, None, seed, os.path.join(out, "studies", name),
+                            [*base[:2], *budget, *extra_args],
+                            tool_args=["--method", method, *size, "--seed", str(seed), *study_resources]))
     return runs
 
 
@@ -149,21 +169,23 @@ def execute(run: Run, max_retries: int, log_path: str) -> tuple[str, int, Option
     """Brings one run to done in this process's machine; returns (status, processes started, error)."""
     os.makedirs(os.path.dirname(log_path), exist_ok=True)
     with open(log_path, "a") as output:
-        if run.method != "relay":
+        if run.method not in ("relay", *HPO_METHODS):
             try:
                 _, attempts = complete_run(resolve_script(run.script), run.args, run.path, max_retries, output)
                 return "done", attempts, None
             except RunFailed as err:
                 return "failed", err.attempts, f"{err} (log: {log_path})"
-        # A relay resumes its own runs; it is retried as a whole while it fails for reasons other than input.
+        # A relay or a study resumes its own runs; it is retried as a whole while it fails for reasons other
+        # than input.
+        command = run.relay_command(0) if run.method == "relay" else run.study_command()
         for attempt in range(1, max_retries + 2):
             output.flush()
-            status = subprocess.run(run.relay_command(0), stdout=output, stderr=output).returncode
+            status = subprocess.run(command, stdout=output, stderr=output).returncode
             if status == 0:
                 return "done", attempt, None
             if status == 2:
                 break
-        return "failed", attempt, f"relay_ultho.py exited with status {status} (log: {log_path})"
+        return "failed", attempt, f"{os.path.basename(command[1])} exited with status {status} (log: {log_path})"
 
 
 def index(grid: dict, runs: list[Run], out: str) -> dict:
@@ -257,9 +279,14 @@ def sweep(runs: list[Run], grid: dict, out: str, executor, max_retries: int, log
     return not failed
 
 
-def total_steps(runs: list[Run], budget_of) -> int:
-    """Environment steps the grid costs: a relay adds two runs when it reuses its ULTHO run, else three."""
-    return sum(budget_of(r) * (1 if r.method != "relay" else 2 if r.source is not None else 3) for r in runs)
+def total_steps(runs: list[Run], budget_of, population: int = 4) -> int:
+    """Environment steps the grid costs: a relay adds two runs when it reuses its ULTHO run, else three; a
+    study runs its population (random search: its samples), each for the whole budget."""
+    def runs_of(run: Run) -> int:
+        if run.method == "relay":
+            return 2 if run.source is not None else 3
+        return population if run.method in HPO_METHODS else 1
+    return sum(budget_of(r) * runs_of(r) for r in runs)
 
 
 def parse_variant(text: str) -> tuple[str, str, str]:
@@ -288,7 +315,8 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
         prog=TOOL,
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Run a grid of ULTHO experiments: scripts x environment ids x methods (ppo: ULTHO off; "
-                    "ultho: one run per (c, W); relay: Relay-ULTHO per (c, W), reusing the ultho run) x seeds. "
+                    "ultho: one run per (c, W); relay: Relay-ULTHO per (c, W), reusing the ultho run; pbt, pb2, "
+                    "random: a study of hpo_baselines.py with --population trials) x seeds. "
                     "Restartable: finished runs are skipped, interrupted ones resume from their checkpoints. "
                     "Arguments after -- go to every run.",
         epilog="examples:\n"
@@ -303,7 +331,11 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
                       "environments and budget, methods ppo ultho relay, c in {1, 5}, W in {10, 50, 100}, seeds 1-5")
     grid.add_argument("--scripts", nargs="+", metavar="SCRIPT", help="training scripts")
     grid.add_argument("--env-ids", nargs="+", metavar="ENV_ID", help="environment ids (each with every script)")
-    grid.add_argument("--methods", nargs="+", choices=METHODS, help="default without a preset: ppo ultho")
+    grid.add_argument("--methods", nargs="+", choices=METHODS, help="ppo ultho relay (the paper's grid) and the "
+                      "HPO baselines of hpo_baselines.py, pbt pb2 random (default: a preset's ppo ultho relay, "
+                      "else ppo ultho)")
+    grid.add_argument("--population", type=int, default=4, metavar="N",
+                      help="trials of a pbt or pb2 study, samples of a random one (default 4)")
     grid.add_argument("--c", nargs="+", type=float, metavar="C", help="ULTHO's exploration coefficients (default 5)")
     grid.add_argument("--window", nargs="+", type=int, metavar="W", help="ULTHO's windows (default 10)")
     grid.add_argument("--points", nargs="+", type=parse_point, metavar="C:W",
@@ -340,7 +372,7 @@ def main(argv: list[str]) -> int:
         env_ids = args.env_ids or (list(preset.env_ids) if preset else None)
         if not scripts or not env_ids:
             raise UsageError("give --paper PRESET, or --scripts and --env-ids")
-        methods = args.methods or (list(METHODS) if preset else ["ppo", "ultho"])
+        methods = args.methods or (["ppo", "ultho", "relay"] if preset else ["ppo", "ultho"])
         if args.points and (args.c or args.window):
             raise UsageError("--points gives the (c, W) pairs itself; leave out --c and --window")
         c_values = args.c or (list(PAPER_C) if preset else [5.0])
@@ -359,24 +391,31 @@ def main(argv: list[str]) -> int:
                 raise UsageError(f"{name} {' '.join(map(str, values))}: a value is given twice")
         if any(not (math.isfinite(c) and c >= 0) for c in c_values) or any(w < 1 for w in windows):
             raise UsageError("--c must be finite and >= 0, --window >= 1")
-        for name, value in (("--total-timesteps", args.total_timesteps), ("--workers", args.workers)):
+        for name, value in (("--total-timesteps", args.total_timesteps), ("--workers", args.workers),
+                            ("--population", args.population)):
             if value is not None and value <= 0:
                 raise UsageError(f"{name} must be positive, got {value}")
         if args.max_retries < 0 or args.cpus_per_run <= 0 or args.gpus_per_run < 0:
             raise UsageError("--max-retries and --gpus-per-run must be >= 0, --cpus-per-run positive")
         for token in extra_args:
             for flag in ("--env-id", "--seed", "--total-timesteps", "--ultho-c", "--ultho-window", "--no-ultho",
-                         "--ultho-strategy", "--ultho-credit", "--ultho-scale", "--run-name", "--runs-dir", "--resume"):
+                         "--ultho-strategy", "--ultho-credit", "--ultho-scale", "--run-name", "--runs-dir", "--resume",
+                         "--init-from"):
                 if token == flag or token.startswith(flag + "="):
                     raise UsageError(f"{flag} after -- is set by the grid; use the grid's own options")
         # Absolute, because a Ray task's working directory is not the driver's.
         out = os.path.abspath(args.out or os.path.join("runs", f"sweep-{args.paper or 'custom'}"))
         grid = {"scripts": [os.path.basename(s) for s in scripts], "env_ids": env_ids, "methods": methods,
                 "c": c_values, "window": windows, "points": [[c, w] for c, w in points],
-                "variants": [":".join(v) for v in variants], "seeds": seeds,
+                "variants": [":".join(v) for v in variants], "seeds": seeds, "population": args.population,
                 "total_timesteps": total_timesteps,
                 "extra_args": extra_args}
-        runs = expand(scripts, env_ids, methods, points, seeds, total_timesteps, extra_args, out, tuple(variants))
+        # A study's trials go to the same Ray cluster as the runs, or to a Ray instance of its own with the CPUs
+        # of one run.
+        study_resources = (("--ray-address", args.ray_address) if args.ray_address else
+                           ("--num-cpus", str(max(1, int(args.cpus_per_run)))))
+        runs = expand(scripts, env_ids, methods, points, seeds, total_timesteps, extra_args, out, tuple(variants),
+                      args.population, study_resources)
 
         if args.dry_run:
             for run in runs:
@@ -385,7 +424,7 @@ def main(argv: list[str]) -> int:
             if budget is None:
                 print(f"{len(runs)} runs; steps per run are the scripts' defaults", file=sys.stderr)
             else:
-                steps = total_steps(runs, lambda run: budget)
+                steps = total_steps(runs, lambda run: budget, args.population)
                 hours = steps / preset.measured_sps / 3600
                 hours = f", {hours:,.{1 if hours < 10 else 0}f} hours at {preset.measured_sps:,.0f} steps/s" \
                     if preset and args.scripts is None else ""

@@ -182,6 +182,8 @@ BAD_INPUTS = [
     (["--repeat-action-probability", "1.5"], "--repeat-action-probability must be in [0, 1], got 1.5"),
     (["--noop-max", "-1"], "--noop-max must be >= 0, got -1"),
     (["--resume", "/no/such/run"], "/no/such/run"),
+    (["--init-from", "/no/such/run"], "--init-from /no/such/run: no checkpoint.pt there"),
+    (["--resume", "/no/such/run", "--init-from", "/no/such/run"], "--resume and --init-from exclude each other"),
     (["--bogus-flag", "1"], "--bogus-flag"),
     (["--run-name", "a/b"], "'a/b'"),
 ]

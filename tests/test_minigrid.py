@@ -2,6 +2,7 @@
 
 import math
 import os
+import shutil
 
 import gymnasium as gym
 import numpy as np
@@ -129,6 +130,75 @@ def test_exp3_run_logs_probabilities_that_sum_to_one(tmp_path):
     assert summary(str(tmp_path / "e"))["bandit"]["exp3_eta"] == 0.5
 
 
+# 8 envs x 64 steps on Empty-5x5, plain PPO: 6 iterations to the first run's end, 12 to the whole run's.
+INIT_FROM = ["--env-id", "MiniGrid-Empty-5x5-v0", "--num-envs", "8", "--num-steps", "64", "--minibatch-size", "128",
+             "--no-ultho", "--eval-episodes", "2", "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def first_half(tmp_path_factory):
+    """A run to step 3072 and the uninterrupted run to 6144 with the same settings and seed."""
+    runs = tmp_path_factory.mktemp("init")
+    run_ok(SCRIPT, *INIT_FROM, "--total-timesteps", "3072", "--runs-dir", str(runs), "--run-name", "first")
+    run_ok(SCRIPT, *INIT_FROM, "--total-timesteps", "6144", "--runs-dir", str(runs), "--run-name", "whole")
+    return runs
+
+
+def test_init_from_in_place_with_the_same_settings_and_seed_equals_the_uninterrupted_run(first_half, tmp_path):
+    """Network, optimizer, environments, counters and random generators all come from the checkpoint."""
+    shutil.copytree(first_half / "first", tmp_path / "first")
+    run_ok(SCRIPT, *INIT_FROM, "--total-timesteps", "6144", "--init-from", str(tmp_path / "first"),
+           "--runs-dir", str(tmp_path), "--run-name", "first")
+    whole, continued = summary(str(first_half / "whole")), summary(str(tmp_path / "first"))
+    for key in ("global_step", "iterations", "final_score", "final_score_episodes", "eval", "settings_in_force"):
+        assert whole[key] == continued[key], key
+    a, b = scalars(str(first_half / "whole")), scalars(str(tmp_path / "first"))
+    for tag in ("losses/value_loss", "losses/policy_loss", "charts/episodic_return", "hparams/learning_rate"):
+        assert a[tag] == b[tag], tag  # both halves, read from the directory's two event files
+    a, b = (torch.load(d / "checkpoint.pt", weights_only=False) for d in (first_half / "whole", tmp_path / "first"))
+    assert all(torch.equal(a["agent"][k], b["agent"][k]) for k in a["agent"])
+
+
+def test_init_from_puts_the_new_settings_in_force_everywhere(first_half, tmp_path):
+    """The optimizer's restored state must not bring back the source's learning rate."""
+    source = torch.load(first_half / "first" / "checkpoint.pt", weights_only=False)
+    assert source["optimizer"]["param_groups"][0]["lr"] == 1e-3
+    run_ok(SCRIPT, *INIT_FROM, "--total-timesteps", "6144", "--init-from", str(first_half / "first"),
+           "--learning-rate", "0.005", "--minibatch-size", "256", "--vf-coef", "1.0", "--seed", "7",
+           "--runs-dir", str(tmp_path), "--run-name", "new")
+    series = scalars(str(tmp_path / "new"))
+    # The counters continue the source's: iterations 7-12, steps 3584-6144.
+    assert [step for step, _ in series["hparams/learning_rate"]] == list(range(3584, 6145, 512))
+    assert [v for _, v in series["hparams/learning_rate"]] == pytest.approx([0.005] * 6)
+    assert [v for _, v in series["charts/learning_rate"]] == pytest.approx([0.005] * 6)  # the optimizer's own
+    assert {v for _, v in series["hparams/minibatch_size"]} == {256.0}
+    assert {v for _, v in series["hparams/vf_coef"]} == {1.0}
+    s = summary(str(tmp_path / "new"))
+    assert s["settings_in_force"] == {"learning_rate": 0.005, "minibatch_size": 256, "vf_coef": 1.0}
+    assert s["settings"]["init_from"] == str(first_half / "first") and s["global_step"] == 6144
+    checkpoint = torch.load(tmp_path / "new" / "checkpoint.pt", weights_only=False)
+    assert checkpoint["optimizer"]["param_groups"][0]["lr"] == 0.005
+    assert checkpoint["config"]["learning_rate"] == 0.005 and checkpoint["iteration"] == 12
+    # The source's optimizer state came along: Adam's step count goes on from the source's.
+    steps_per_iteration = 4 * 512 // 256
+    assert checkpoint["optimizer"]["state"][0]["step"] == source["optimizer"]["state"][0]["step"] + 6 * steps_per_iteration
+
+
+def test_init_from_refuses_another_rollout_or_an_exhausted_budget(first_half, tmp_path):
+    first = str(first_half / "first")
+    for args, named in ((["--num-envs", "4", "--total-timesteps", "6144"], "its num_envs is 8, this run's --num-envs 4"),
+                        (["--env-id", "MiniGrid-Empty-6x6-v0", "--total-timesteps", "6144"], "its env_id is"),
+                        (["--total-timesteps", "3072"], "is already at step 3072")):
+        result = run(SCRIPT, *INIT_FROM, "--init-from", first, *args, "--runs-dir", str(tmp_path / "r"))
+        assert_refused(SCRIPT, str(tmp_path / "r"), result, named)
+    # Only a run of this script may be continued in its own directory.
+    (tmp_path / "taken").mkdir()
+    result = run(SCRIPT, *INIT_FROM, "--init-from", first, "--total-timesteps", "6144", "--runs-dir", str(tmp_path),
+                 "--run-name", "taken")
+    assert result.returncode == 2 and "run directory" in result.stderr and "already exists" in result.stderr
+    assert os.listdir(tmp_path / "taken") == []
+
+
 def test_non_finite_loss_stops_and_keeps_last_good_checkpoint(tmp_path):
     # Iteration 1 takes lr=1e-3 (every bound is 0). Iteration 2 explores the untried 1e38, whose bonus
     # c*sqrt(ln 2 / 1) exceeds the tried arm's by 5*(0.83-0.59) = 1.2 while |credit| < 1 on Empty-5x5.
@@ -165,6 +235,8 @@ BAD_INPUTS = [
     (["--learning-rate", "-0.1"], "-0.1"),
     (["--gamma", "1.5"], "--gamma must be in (0, 1], got 1.5"),
     (["--resume", "/no/such/run"], "/no/such/run"),
+    (["--init-from", "/no/such/run"], "--init-from /no/such/run: no checkpoint.pt there"),
+    (["--resume", "/no/such/run", "--init-from", "/no/such/run"], "--resume and --init-from exclude each other"),
     (["--bogus-flag", "1"], "--bogus-flag"),
     (["--run-name", "a/b"], "'a/b'"),
 ]

@@ -151,6 +151,8 @@ BAD_INPUTS = [
     (["--total-timesteps", "100"], "--total-timesteps 100"),
     (["--gamma", "1.5"], "--gamma must be in (0, 1], got 1.5"),
     (["--resume", "/no/such/run"], "/no/such/run"),
+    (["--init-from", "/no/such/run"], "--init-from /no/such/run: no checkpoint.pt there"),
+    (["--resume", "/no/such/run", "--init-from", "/no/such/run"], "--resume and --init-from exclude each other"),
     (["--run-name", "a/b"], "'a/b'"),
 ]
 

@@ -154,6 +154,34 @@ def test_killed_and_resumed_run_equals_uninterrupted_run(tmp_path):
         assert torch.equal(tensor, final_resumed["agent"][name]), name
 
 
+def test_init_from_carries_the_normalizer_over_and_puts_the_new_settings_in_force(tmp_path):
+    """A run continued with --init-from keeps its observation and return statistics: with the same settings and
+    seed it equals the uninterrupted run bit for bit; with new ones, the new settings are in force."""
+    args = ["--env-id", "HalfCheetahBulletEnv-v0", "--num-steps", "128", "--update-epochs", "2", "--no-ultho",
+            "--eval-episodes", "1", "--quiet", "--runs-dir", str(tmp_path)]
+    run_ok(SCRIPT, *args, "--total-timesteps", "1536", "--run-name", "whole")
+    run_ok(SCRIPT, *args, "--total-timesteps", "768", "--run-name", "first")
+    first = torch.load(tmp_path / "first" / "checkpoint.pt", weights_only=False)
+    assert first["normalizer"]["obs"]["count"] == pytest.approx(769 + 1e-4)
+    run_ok(SCRIPT, *args, "--total-timesteps", "1536", "--init-from", str(tmp_path / "first"), "--run-name", "same")
+    run_ok(SCRIPT, *args, "--total-timesteps", "1536", "--init-from", str(tmp_path / "first"), "--run-name", "new",
+           "--learning-rate", "0.0007", "--minibatch-size", "128", "--seed", "5")
+    whole, same, new = (torch.load(tmp_path / name / "checkpoint.pt", weights_only=False) for name in ("whole", "same", "new"))
+    for stats in ("obs", "return"):
+        for field in ("mean", "var", "count"):
+            assert np.array_equal(whole["normalizer"][stats][field], same["normalizer"][stats][field]), (stats, field)
+    assert all(torch.equal(whole["agent"][k], same["agent"][k]) for k in whole["agent"])
+    assert summary(str(tmp_path / "whole"))["eval"] == summary(str(tmp_path / "same"))["eval"]
+    # The new run's statistics went on from the source's 769 observations rather than starting afresh.
+    assert new["normalizer"]["obs"]["count"] == pytest.approx(1537 + 1e-4)
+    assert not np.array_equal(new["normalizer"]["obs"]["mean"], whole["normalizer"]["obs"]["mean"])
+    assert new["optimizer"]["param_groups"][0]["lr"] == 7e-4 and new["global_step"] == 1536
+    series = scalars(str(tmp_path / "new"))
+    assert [s for s, _ in series["charts/learning_rate"]] == list(range(896, 1537, 128))
+    assert [v for _, v in series["charts/learning_rate"]] == pytest.approx([7e-4] * 6)
+    assert {v for _, v in series["hparams/minibatch_size"]} == {128.0}
+
+
 def test_resume_reapplies_the_learning_rate_in_force(tmp_path):
     # Only vf_coef is tuned, so no later selection sets the learning rate: after the resume the optimizer runs
     # at the rate in force only if loading re-applies it. The checkpoint is edited as if ULTHO had chosen 7e-4
@@ -210,6 +238,8 @@ BAD_INPUTS = [
     (["--gamma", "1.5"], "--gamma must be in (0, 1], got 1.5"),
     (["--eval-episodes", "-1"], "--eval-episodes must be >= 0, got -1"),
     (["--resume", "/no/such/run"], "/no/such/run"),
+    (["--init-from", "/no/such/run"], "--init-from /no/such/run: no checkpoint.pt there"),
+    (["--resume", "/no/such/run", "--init-from", "/no/such/run"], "--resume and --init-from exclude each other"),
     (["--bogus-flag", "1"], "--bogus-flag"),
     (["--run-name", "a/b"], "'a/b'"),
 ]

@@ -150,6 +150,7 @@ BAD_INPUTS = [
     ([SCRIPT, "--", "--run-name", "x"], "--run-name is set by the tool itself"),
     ([SCRIPT, "--", "--runs-dir=elsewhere"], "--runs-dir is set by the tool itself"),
     ([SCRIPT, "--", "--resume", "runs/x"], "--resume is set by the tool itself"),
+    ([SCRIPT, "--", "--init-from", "runs/x"], "--init-from is set by the tool itself"),
     ([SCRIPT, "--", "--ultho-clusters", "vf_coef"], "--ultho-clusters vf_coef: Relay-ULTHO needs at least two clusters"),
     (["ppo_ultho_nothing.py"], "script ppo_ultho_nothing.py: no such file"),
     ([SCRIPT, "--from", "/no/such/run"], "--from /no/such/run: no summary.json there"),

@@ -12,7 +12,11 @@ REQUIREMENTS = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__fi
 MODULES = {"torch": "torch", "gymnasium": "gymnasium", "numpy": "numpy", "tensorboard": "tensorboard",
            "tyro": "tyro", "tqdm": "tqdm", "ale-py": "ale_py", "procgen-mirror": "procgen", "minigrid": "minigrid",
            "pybullet": "pybullet", "pybullet-envs-gymnasium": "pybullet_envs_gymnasium", "ray": "ray",
-           "matplotlib": "matplotlib", "cffi": "cffi", "stable-baselines3": "stable_baselines3"}
+           "matplotlib": "matplotlib", "cffi": "cffi", "stable-baselines3": "stable_baselines3", "pandas": "pandas",
+           "pyarrow": "pyarrow", "tensorboardx": "tensorboardX", "pydantic": "pydantic", "scikit-learn": "sklearn",
+           "scipy": "scipy"}
+# Ray Tune and PB2 (hpo_baselines.py) import only with their extras present, at these pins.
+EXTRA_MODULES = ["ray.tune", "ray.tune.schedulers.pb2"]
 
 
 def pins() -> dict[str, str]:
@@ -36,4 +40,9 @@ def test_installed_version_matches_pin(distribution):
 
 @pytest.mark.parametrize("distribution, module", sorted(MODULES.items()))
 def test_direct_dependency_imports(distribution, module):
+    importlib.import_module(module)
+
+
+@pytest.mark.parametrize("module", EXTRA_MODULES)
+def test_ray_tune_and_pb2_import(module):
     importlib.import_module(module)

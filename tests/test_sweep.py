@@ -82,6 +82,35 @@ def test_variants_name_their_runs_and_pass_their_options(tmp_path):
     assert all("--ultho-strategy ts --ultho-credit improvement --ultho-scale running" in c for c in variant)
 
 
+def test_hpo_methods_are_studies_of_the_population_in_the_dry_run(tmp_path):
+    result = run(TOOL, "--paper", "minigrid", "--methods", "ppo", "pbt", "pb2", "random", "--seeds", "1",
+                 "--population", "3", "--dry-run", "--out", str(tmp_path / "s"))
+    assert result.returncode == 0, result.stderr
+    commands = result.stdout.strip().splitlines()
+    assert len(commands) == 3 * 4
+    for method, size in (("pbt", "--population 3"), ("pb2", "--population 3"), ("random", "--samples 3")):
+        studies = [c for c in commands if f"hpo_baselines.py ppo_ultho_minigrid.py --method {method} " in c]
+        assert len(studies) == 3 and all(f"{size} --seed 1 --num-cpus 1 --study-dir " in c for c in studies)
+        assert all(" -- --env-id MiniGrid-" in c and c.endswith("--total-timesteps 500000") for c in studies)
+    # PPO is one run of the budget per environment, each study three.
+    assert f"12 runs, {3 * (1 + 3 * 3) * 500_000:,} environment steps" in result.stderr
+
+
+def test_sweep_runs_a_pbt_study_and_indexes_it(tmp_path):
+    out = tmp_path / "s"
+    result = run(TOOL, "--methods", "pbt", "--population", "2", "--out", str(out), *TINY)
+    assert result.returncode == 0, result.stdout + result.stderr
+    [record] = index(out)["runs"]
+    assert (record["method"], record["status"], record["attempts"], record["c"]) == ("pbt", "done", 1, None)
+    assert record["path"] == os.path.join("studies", "minigrid__MiniGrid-Empty-5x5-v0__pbt__s1")
+    with open(out / record["path"] / "study.json") as f:
+        study = json.load(f)
+    assert (study["status"], study["method"], study["seed"]) == ("done", "pbt", 1)
+    assert study["budget"]["total_steps"] == 2 * 512 and len(study["trials"]) == 2
+    again = run(TOOL, "--methods", "pbt", "--population", "2", "--out", str(out), *TINY)
+    assert again.returncode == 0 and "1 runs, 1 already done, 0 to run" in again.stdout
+
+
 @pytest.fixture(scope="module")
 def local_sweep(tmp_path_factory):
     out = tmp_path_factory.mktemp("local") / "s"
@@ -97,6 +126,7 @@ def test_local_sweep_runs_every_grid_point_and_indexes_it(local_sweep):
     assert record["grid"] == {"scripts": [SCRIPT], "env_ids": ["MiniGrid-Empty-5x5-v0"],
                               "methods": ["ppo", "ultho", "relay"], "c": [5.0], "window": [10],
                               "points": [[5.0, 10]], "variants": ["ucb:level:none"], "seeds": [1],
+                              "population": 4,
                               "total_timesteps": 512, "extra_args": TINY[TINY.index("--") + 1:]}
     runs = {r["method"]: r for r in record["runs"]}
     assert len(record["runs"]) == 3 and all(set(r) == RUN_FIELDS for r in record["runs"])
@@ -226,7 +256,8 @@ BAD_INPUTS = [
     (["--scripts", "ppo_ultho_nothing.py", "--env-ids", "X"], "script ppo_ultho_nothing.py: no such file"),
     (["--paper", "minigrid", "--seeds", "1", "1"], "--seeds 1 1: a value is given twice"),
     (["--paper", "minigrid", "--workers", "0"], "--workers must be positive, got 0"),
-    (["--paper", "minigrid", "--methods", "pbt"], "invalid choice: 'pbt'"),
+    (["--paper", "minigrid", "--methods", "hyperband"], "invalid choice: 'hyperband'"),
+    (["--paper", "minigrid", "--methods", "pbt", "--population", "0"], "--population must be positive, got 0"),
     (["--paper", "minigrid", "--", "--seed", "3"], "--seed after -- is set by the grid"),
     (["--paper", "minigrid", "--points", "5"], "argument --points: '5' is not C:W (e.g. 5:10)"),
     (["--paper", "minigrid", "--points", "5:10", "--window", "50"], "--points gives the (c, W) pairs itself"),
@@ -236,6 +267,7 @@ BAD_INPUTS = [
     (["--paper", "minigrid", "--variants", "ts:level:none", "ts:level:none"], "--variants ts:level:none ts:level:none"),
     (["--paper", "minigrid", "--", "--ultho-scale", "running"], "--ultho-scale after -- is set by the grid"),
     (["--paper", "minigrid", "--", "--resume", "x"], "--resume after -- is set by the grid"),
+    (["--paper", "minigrid", "--", "--init-from", "x"], "--init-from after -- is set by the grid"),
 ]
 
 
