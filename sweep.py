@@ -425,9 +425,10 @@ def main(argv: list[str]) -> int:
                 print(f"{len(runs)} runs; steps per run are the scripts' defaults", file=sys.stderr)
             else:
                 steps = total_steps(runs, lambda run: budget, args.population)
-                hours = steps / preset.measured_sps / 3600
-                hours = f", {hours:,.{1 if hours < 10 else 0}f} hours at {preset.measured_sps:,.0f} steps/s" \
-                    if preset and args.scripts is None else ""
+                hours = ""
+                if preset and args.scripts is None:
+                    h = steps / preset.measured_sps / 3600
+                    hours = f", {h:,.{1 if h < 10 else 0}f} hours at {preset.measured_sps:,.0f} steps/s"
                 print(f"{len(runs)} runs, {steps:,} environment steps{hours}", file=sys.stderr)
             return 0
 

@@ -69,6 +69,13 @@ def test_points_give_the_c_w_pairs_instead_of_the_product(tmp_path):
     assert f"75 runs, {3 * 5 * (1 + 2 + 2 * 2) * 500_000:,} environment steps" in result.stderr
 
 
+def test_dry_run_of_a_custom_grid_counts_steps_without_an_hours_estimate(tmp_path):
+    result = run(TOOL, "--scripts", SCRIPT, "--env-ids", "MiniGrid-Empty-5x5-v0", "--methods", "ppo", "pbt",
+                 "--population", "2", "--total-timesteps", "1024", "--dry-run", "--out", str(tmp_path / "s"))
+    assert result.returncode == 0, result.stderr
+    assert result.stderr.strip() == f"2 runs, {1024 + 2 * 1024:,} environment steps"
+
+
 def test_variants_name_their_runs_and_pass_their_options(tmp_path):
     result = run(TOOL, "--paper", "minigrid", "--points", "5:10", "--variants", "ucb:level:none", "ts:improvement:running",
                  "--env-ids", "MiniGrid-DoorKey-6x6-v0", "--seeds", "1", "--dry-run", "--out", str(tmp_path / "s"))
