@@ -80,6 +80,8 @@ NORMALIZATION = {
 }
 RETURN_TAG = "charts/episodic_return"
 PAPER_VARIANT = "ucb:level:none"
+HPO_METHODS = ("pbt", "pb2", "random")
+HPO_NAMES = {"pbt": "PBT", "pb2": "PB2", "random": "random search"}
 SCALARS_CSV = "scalars.csv"
 GRID_POINTS = 200
 STEPS = EngFormatter(sep="")
@@ -107,7 +109,7 @@ class Run:
     path: str
     benchmark: str
     env_id: str
-    kind: str  # "ppo", "ultho" or "relay"
+    kind: str  # "ppo", "ultho", "relay", or an HPO study's method: "pbt", "pb2", "random"
     c: float | None
     window: int | None
     seed: int
@@ -121,6 +123,7 @@ class Run:
     search_space: dict[str, list] | None = None
     variant: str = "ucb:level:none"  # the bandit's strategy:credit:scale (summary.json; the paper's when absent)
     value_selections: dict[str, list[int]] | None = None  # credited selections of each value (summary.json)
+    study: dict | None = None  # an HPO study's study.json (hpo_baselines.py)
     score: float | None = None  # normalized, set by Study.normalize
     label: str = ""  # the method, set by Study.label_methods
     narrowed: bool = False  # ULTHO on a search space other than its benchmark's widest (set with the label)
@@ -200,27 +203,32 @@ class Study:
 
     # ------------------------------------------------------------------ discovery
     def discover(self, roots: list[str]) -> None:
-        sweeps, relays, run_dirs = [], [], []
+        sweeps, relays, studies, run_dirs = [], [], [], []
         for root in roots:
             for directory, subdirs, files in os.walk(root):
                 subdirs.sort()
                 if "sweep.json" in files:
                     sweeps.append(directory)
-                if "relay.json" in files:
+                if "study.json" in files:
+                    studies.append(directory)
+                elif "relay.json" in files:
                     relays.append(directory)
                 elif "summary.json" in files or SCALARS_CSV in files or \
                         any(f.startswith("events.out.tfevents") for f in files):
                     run_dirs.append(directory)
         for directory in sweeps:
-            listed_relays, listed_runs = self.load_sweep(directory)
+            listed_relays, listed_studies, listed_runs = self.load_sweep(directory)
             relays += listed_relays
+            studies += listed_studies
             run_dirs += listed_runs
-        relay_dirs = [os.path.realpath(d) + os.sep for d in relays]
+        owners = [os.path.realpath(d) + os.sep for d in relays + studies]
         for directory in relays:
             self.load_relay(directory)
+        for directory in studies:
+            self.load_study(directory)
         for directory in run_dirs:
-            # A run inside a relay directory is one of the relay's own runs, scored with the relay.
-            if not any(os.path.realpath(directory).startswith(relay) for relay in relay_dirs):
+            # A run inside a relay or a study directory is one of its own runs, scored with it.
+            if not any(os.path.realpath(directory).startswith(owner) for owner in owners):
                 self.load_run(directory)
 
     def claim(self, path: str) -> bool:
@@ -231,12 +239,12 @@ class Study:
         self._seen.add(real)
         return True
 
-    def load_sweep(self, directory: str) -> tuple[list[str], list[str]]:
+    def load_sweep(self, directory: str) -> tuple[list[str], list[str], list[str]]:
         path = os.path.join(directory, "sweep.json")
         sweep = self.read_json(path)
-        relays, runs = [], []
+        relays, studies, runs = [], [], []
         if sweep is None:
-            return relays, runs
+            return relays, studies, runs
         try:
             grid = sweep["grid"]
             if "ultho" in grid["methods"] or "relay" in grid["methods"]:
@@ -253,10 +261,11 @@ class Study:
                 elif not os.path.isdir(where):
                     self.warn(where, "listed as done in sweep.json but not there; skipped")
                 else:
-                    (relays if entry["method"] == "relay" else runs).append(where)
+                    kind = entry["method"]
+                    (relays if kind == "relay" else studies if kind in HPO_METHODS else runs).append(where)
         except (KeyError, TypeError, ValueError) as err:
             self.warn(path, f"not in the sweep.json format ({err.__class__.__name__}: {err}); its index is skipped")
-        return relays, runs
+        return relays, studies, runs
 
     def load_relay(self, directory: str) -> None:
         path = os.path.join(directory, "relay.json")
@@ -286,6 +295,40 @@ class Study:
                   curve=self.read_scalars(winner_dir).get(RETURN_TAG), curve_budget=int(winner["global_step"]),
                   variant=variant_of(full_bandit))
         self.runs.append(run)
+
+    def load_study(self, directory: str) -> None:
+        """An HPO study of hpo_baselines.py, scored by its best trial's final score; its budget is the whole
+        population's steps."""
+        path = os.path.join(directory, "study.json")
+        if not self.claim(directory) or (study := self.read_json(path)) is None:
+            return
+        try:
+            if study["status"] != "done":
+                self.missing.append(f"study `{directory}` ({study['method']}, seed {study['seed']}) is {study['status']}")
+                return
+            method, seed, budget = str(study["method"]), int(study["seed"]), int(study["budget"]["total_steps"])
+            if method not in HPO_METHODS:
+                raise ValueError(f"unknown method {method!r}")
+            trials = {trial["name"]: trial for trial in study["trials"]}
+            best_dir = os.path.join(directory, trials[study["best_trial"]]["run_dir"])
+            float(study["max_observed_score"]["score"])
+            schedule = [(int(part["start_step"]), int(part["end_step"]), dict(part["settings"]))
+                        for part in study["best_settings_schedule"]]
+        except (KeyError, TypeError, ValueError) as err:
+            self.warn(path, f"not in the study.json format ({err.__class__.__name__}: {err}); skipped")
+            return
+        for trial in trials.values():  # every trial's summary, so that --export-data keeps the whole study
+            if trial["run_dir"] != trials[study["best_trial"]]["run_dir"]:
+                self.read_summary(os.path.join(directory, trial["run_dir"]))
+        best = self.read_summary(best_dir)
+        if best is None:
+            return
+        benchmark = benchmark_of(study["script"])
+        study["schedule"] = schedule
+        self.runs.append(Run(directory, benchmark, str(best["env_id"]), method, None, None, seed, budget,
+                             *raw_score(best, benchmark), eval_score=eval_score(best),
+                             curve=self.read_scalars(best_dir).get(RETURN_TAG),
+                             curve_budget=int(best["global_step"]), study=study))
 
     def read_summary(self, run_dir: str) -> dict | None:
         """summary.json with the fields the report needs checked; None (and a warning) when unusable."""
@@ -349,6 +392,10 @@ class Study:
         for run in self.runs:
             if run.kind == "ppo":
                 run.label = "PPO"
+                continue
+            if run.kind in HPO_METHODS:
+                run.label = (f"random search ({run.study.get('samples')} samples)" if run.kind == "random" else
+                             f"{HPO_NAMES[run.kind]} (population {run.study.get('population')})")
                 continue
             strategy = run.variant.split(":")[0]
             if run.c is None:
@@ -567,7 +614,7 @@ def slug(text: str) -> str:
 
 
 def method_order(runs: list[Run]) -> list[str]:
-    rank = {"ppo": 0, "ultho": 1, "relay": 2}
+    rank = {"ppo": 0, "ultho": 1, "relay": 2, "pbt": 3, "pb2": 4, "random": 5}
     keyed = {run.label: (rank[run.kind], run.variant != PAPER_VARIANT, run.variant, run.c or 0, run.window or 0,
                          run.label) for run in runs}
     return sorted(keyed, key=keyed.get)
@@ -738,6 +785,44 @@ def per_run_figure(run: Run, name: str, out: str) -> str | None:
     return save(figure, out, os.path.join("runs", f"{slug(name)}.png"))
 
 
+def schedule_figure(runs: list[Run], benchmark: str, out: str) -> str | None:
+    """Per cluster, the value in force against steps: every study's best-trial schedule and, for comparison,
+    the ``hparams/*`` series of one ULTHO run per method on the same environment."""
+    studies = [r for r in runs if r.kind in HPO_METHODS]
+    env_id = sorted(r.env_id for r in studies)[0]
+    studies = [r for r in studies if r.env_id == env_id]
+    clusters = sorted({name for r in studies for _, _, settings in r.study["schedule"] for name in settings})
+    if not clusters:
+        return None
+    figure, panels = plt.subplots(len(clusters), 1, figsize=(9, 2.4 * len(clusters) + 0.8), squeeze=False,
+                                  layout="constrained", sharex=True)
+    labels = method_order(runs)
+    for panel, cluster in zip(panels[:, 0], clusters):
+        for r in studies:
+            steps, values = [], []
+            for start, end, settings in r.study["schedule"]:
+                steps += [start, end]
+                values += [settings[cluster]] * 2
+            panel.plot(steps, values, color=f"C{labels.index(r.label) % 10}", alpha=0.8, linewidth=1.5,
+                       label=f"{r.label}, seed {r.seed}")
+        for label in labels:
+            ultho = sorted((r for r in runs if r.label == label and r.kind == "ultho" and r.env_id == env_id
+                            and f"hparams/{cluster}" in r.series), key=lambda r: r.seed)
+            if ultho:
+                series = ultho[0].series[f"hparams/{cluster}"]
+                panel.step(series[:, 0], series[:, 1], where="pre", color=f"C{labels.index(label) % 10}",
+                           alpha=0.35, linewidth=0.8, label=f"{label}, seed {ultho[0].seed}")
+        panel.set_ylabel(cluster)
+        if cluster == "learning_rate":
+            panel.set_yscale("log")
+        panel.grid(alpha=0.3)
+    steps_axis(panels[-1, 0])
+    handles, names = panels[0, 0].get_legend_handles_labels()
+    figure.legend(handles, names, loc="outside lower center", ncol=2, frameon=False, fontsize=8)
+    figure.suptitle(f"{BENCHMARKS[benchmark]} {env_id}: settings schedules")
+    return save(figure, out, f"schedules_{benchmark}.png")
+
+
 def robustness_figure(runs: list[Run], benchmark: str, grid: dict, seed: int, reps: int,
                       out: str) -> tuple[str | None, list[str]]:
     """One panel per environment with ULTHO runs: the mean score at each (c, W) with its 95% interval, and PPO.
@@ -850,10 +935,13 @@ def benchmark_section(study: Study, benchmark: str, args: argparse.Namespace, ro
               f"within each environment, seed {seed}). Each table compares only methods with runs on every one of its "
               "environments. "
               + ("Relay-ULTHO: one score per relay (its winner's); its budget is the three runs'. "
-                 if any(r.kind == "relay" for r in runs) else "") + "Also in [aggregate.csv](aggregate.csv).", ""]
+                 if any(r.kind == "relay" for r in runs) else "")
+              + ("PBT, PB2, random search: one score per study, the final score of its best trial; its budget is "
+                 "the whole population's steps. " if any(r.kind in HPO_METHODS for r in runs) else "")
+              + "Also in [aggregate.csv](aggregate.csv).", ""]
     for group_envs, group_methods in coverage_groups(runs, methods):
         lines += [f"Over {len(group_envs)} environment{'s' * (len(group_envs) > 1)}: {', '.join(group_envs)}.", "",
-                  "| method | environments | runs | mean (%) [95% CI] | IQM (%) [95% CI] | budget per run (steps) |",
+                  "| method | environments | runs | mean (%) [95% CI] | IQM (%) [95% CI] | budget per run or study (steps) |",
                   "|---|---|---|---|---|---|"]
         for label in group_methods:
             members = [r for r in runs if r.label == label]
@@ -886,6 +974,28 @@ def benchmark_section(study: Study, benchmark: str, args: argparse.Namespace, ro
             cells = [efficiency_of([r for r in members if r.env_id == env], threshold, window).text() for env in envs]
             lines.append(f"| {label} | " + " | ".join(cells) + f" | {efficiency_of(members, threshold, window).text()} |")
         lines += ["", f"![sample efficiency]({efficiency})", ""]
+
+    studies = sorted((r for r in runs if r.kind in HPO_METHODS), key=lambda r: (method_order(runs).index(r.label),
+                                                                              r.env_id, r.seed))
+    if studies:
+        lines += ["### HPO baselines", "",
+                  "One row per study (`hpo_baselines.py`): the budget is every trial's steps together; the best "
+                  "trial's final score is what the tables above use; the maximum observed score (the highest score "
+                  "any trial reported at any interval) is the paper's measure for population methods.", "",
+                  "| method | environment | seed | budget (steps) | best trial | its final score | maximum observed "
+                  "score (trial, step) | exploits |", "|---|---|---|---|---|---|---|---|"]
+        for r in studies:
+            seen = r.study["max_observed_score"]
+            lines.append(f"| {r.label} | {r.env_id} | {r.seed} | {r.budget:,} | {r.study['best_trial']} | "
+                         f"{number(r.raw_score) if r.raw_score is not None else '–'} | {number(seen['score'])} "
+                         f"({seen['trial']}, {seen['step']:,}) | {len(r.study.get('exploits') or [])} |")
+        lines.append("")
+        schedule = schedule_figure(runs, benchmark, out)
+        if schedule:
+            lines += [f"![settings schedules]({schedule})", "",
+                      "The settings behind each study's best final network (PBT and PB2 follow every exploit back "
+                      "into the trial it copied; random search keeps one setting), beside the settings in force in "
+                      "one ULTHO run per method (its lowest seed), on each environment's first study.", ""]
 
     ultho_methods = [m for m in methods if any(r.label == m and r.kind == "ultho" for r in runs)]
     if ultho_methods:

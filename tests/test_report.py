@@ -384,3 +384,33 @@ def test_bandit_variants_are_methods_of_their_own(tmp_path):
     report = (tmp_path / "out" / "report.md").read_text()
     assert "#### ULTHO ts/improvement/running (W=10)" in report
     assert "decision_minigrid_ULTHO_ts_improvement_running_W_10.png" in report
+
+
+def test_hpo_studies_are_rows_with_their_whole_budget(tmp_path):
+    """A real PBT study (population 2, exploits every two iterations) beside a PPO run: the study is one entry
+    scored by its best trial's final score, with the population's steps as its budget; its trials are not PPO
+    runs; its schedule is drawn."""
+    common = ["--env-id", ENVS[0], "--num-envs", "4", "--num-steps", "64", "--minibatch-size", "64",
+              "--ultho-clusters", "learning_rate", "minibatch_size=32,64,128", "vf_coef", "--eval-episodes", "2"]
+    result = run("hpo_baselines.py", SCRIPT, "--method", "pbt", "--population", "2", "--seed", "1", "--interval",
+                 "512", "--num-cpus", "2", "--study-dir", str(tmp_path / "study"), "--quiet", "--", *common,
+                 "--total-timesteps", "1024")
+    assert result.returncode == 0, result.stderr
+    result = run(SCRIPT, *common, "--no-ultho", "--total-timesteps", "1024", "--quiet", "--runs-dir",
+                 str(tmp_path / "runs"), "--run-name", "ppo")
+    assert result.returncode == 0, result.stderr
+    result = run(REPORT, str(tmp_path / "study"), str(tmp_path / "runs"), "--out", str(tmp_path / "out"),
+                 "--reps", "500", "--no-per-run")
+    assert result.returncode == 0 and "warning" not in result.stderr, result.stderr
+    record = json.loads((tmp_path / "study" / "study.json").read_text())
+    finals = [summary(str(tmp_path / "study" / t["run_dir"]))["final_score"] for t in record["trials"]]
+    rows = table(tmp_path / "out")
+    assert list(rows) == ["PPO", "PBT (population 2)"]
+    assert int(rows["PPO"]["runs"]) == 1  # the trials are the study's, not PPO runs
+    pbt = rows["PBT (population 2)"]
+    assert int(pbt["runs"]) == 1 and float(pbt["mean"]) == pytest.approx(max(finals))
+    assert int(pbt["budget_steps_min"]) == int(pbt["budget_steps_max"]) == 2 * 1024 == record["budget"]["total_steps"]
+    report = (tmp_path / "out" / "report.md").read_text()
+    seen = record["max_observed_score"]
+    assert f"({seen['trial']}, {seen['step']:,}) | {len(record['exploits'])} |" in report
+    assert "![settings schedules](schedules_minigrid.png)" in report and (tmp_path / "out" / "schedules_minigrid.png").is_file()
