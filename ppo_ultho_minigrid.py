@@ -10,7 +10,7 @@ critic, each two 64-unit tanh layers. The image's integer codes (object, colour,
 as the paper's settings say ("observation normalization: none"). An MLP rather than the usual small CNN
 because on a 2-core CPU the CNN's update costs about 3x as much for no gain on these small grids.
 
-Defaults are the paper's MiniGrid settings (Appendix B, Tables 2-3; ``ULTHO_SPEC.md``).
+Defaults are the paper's MiniGrid settings (Appendix B, Tables 2-3; ``docs/paper.md``).
 
     python ppo_ultho_minigrid.py --env-id MiniGrid-DoorKey-6x6-v0 --seed 1
     tensorboard --logdir runs

@@ -14,7 +14,7 @@ every checkpoint stores and the final evaluation uses frozen).
 Environments: the PyBullet locomotion tasks of ``pybullet-envs-gymnasium`` (``AntBulletEnv-v0``,
 ``HalfCheetahBulletEnv-v0``, ``HopperBulletEnv-v0``, ``Walker2DBulletEnv-v0``, ...) and any gymnasium
 environment with a Box action space and a state-vector observation. Defaults are the paper's PyBullet
-settings (Appendix B, Tables 2-3; ``ULTHO_SPEC.md``).
+settings (Appendix B, Tables 2-3; ``docs/paper.md``).
 
     python ppo_ultho_pybullet.py --env-id HopperBulletEnv-v0 --seed 1
     tensorboard --logdir runs

@@ -44,7 +44,7 @@ class Preset:
     script: str
     env_ids: tuple[str, ...]
     total_timesteps: int
-    """the paper's budget per run (ULTHO_SPEC.md, "environment steps")"""
+    """the paper's budget per run (docs/paper.md, Table 3)"""
     measured_sps: float
     """single-run steps per second, ULTHO on, as measured in the README (CPU for MiniGrid and PyBullet, one
     H100 for ALE and Procgen), for the compute estimate"""

@@ -439,7 +439,7 @@ def test_a_killed_training_resumes_from_its_latest_checkpoint(tmp_path):
 
 # ------------------------------------------------------------------------------------------------ learning
 def test_ppo_with_the_callback_learns_cartpole():
-    """The issue's search space on CartPole-v1 with rl-zoo's PPO settings for it (8 environments, gamma 0.98,
+    """The README's example search space on CartPole-v1 with rl-zoo's PPO settings for it (8 environments, gamma 0.98,
     GAE lambda 0.8, minibatch 256; rollouts of 64 steps) for 32,768 steps: the greedy policy must average at
     least 195 over 20 fresh episodes (CartPole-v0's 'solved'). Seeds 0, 1 and 2 reached 500 by then."""
     model = PPO("MlpPolicy", make_vec_env("CartPole-v1", n_envs=8, seed=0), n_steps=64, batch_size=256,
