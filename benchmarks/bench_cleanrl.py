@@ -1,0 +1,147 @@
+"""This project's scripts against CleanRL's, side by side: whole-process wall time and peak memory.
+
+Each benchmark trains the same number of steps at the paper's settings with CleanRL's script and with ours
+(ULTHO on, and --no-ultho), alternating the three in every round so that drifting machine load hits all alike.
+A run is timed from process start to exit (imports, environment construction and start-up included) and its
+peak resident memory is read from the kernel's accounting of that process (``os.wait4``). The table gives
+medians over the rounds and ratios: CleanRL's wall time over ours (above 1: ours is faster) and our peak
+memory over CleanRL's.
+
+CLEANRL_DIR holds the four scripts of CleanRL's ``cleanrl/`` (https://github.com/vwxyzjn/cleanrl; measured with
+commit fe8d8a0), copied flat with ``cleanrl_utils/`` (``__init__.py``, ``atari_wrappers.py``) beside them, kept
+outside this repository and adapted minimally to this project's pinned gymnasium 1.4:
+
+- ``ppo.py``: ``import minigrid``, and ``FlattenObservation(ImgObsWrapper(env))`` after ``gym.make`` (MiniGrid's
+  image, flattened: the network is the same 64-unit MLP as ours);
+- ``ppo_atari.py``: ``gym.register_envs(ale_py)``; gymnasium 1.x names ``GrayscaleObservation`` and
+  ``FrameStackObservation``; it needs opencv (``ResizeObservation``);
+- ``ppo_continuous_action.py``: ``import pybullet_envs_gymnasium``; ``TransformObservation`` gets its
+  observation space (gymnasium 1.x's signature);
+- those three: ``SyncVectorEnv(..., autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)`` (the autoreset CleanRL
+  was written for; 1.x's default would store a reset as a transition) and the episode-logging loop rewritten
+  for 1.x's ``final_info`` (one dict of arrays with an ``_episode`` mask);
+- ``ppo_procgen.py``: unchanged, run with gym 0.23.1 (the gym it was written for; 0.26 breaks its reset).
+
+Both sides run the paper's settings (the flags below). What still differs: CleanRL's ``ppo_atari.py`` sign-clips
+rewards where ours normalizes them, and steps Python wrappers around single games where ours uses ALE's C++
+vector environment; CleanRL's ``ppo_procgen.py`` trains on the full level distribution, so ours gets
+``--num-levels 0`` here; each side uses its own default torch threads (ours: one for MiniGrid and PyBullet, one
+per core for ALE and Procgen; CleanRL: torch's default, one per core).
+
+``--cleanrl-python`` is the interpreter for CleanRL's scripts (a virtual environment with this project's
+requirements plus opencv-python-headless and gym==0.23.1); ours run with this interpreter.
+
+Usage: python benchmarks/bench_cleanrl.py CLEANRL_DIR [--cleanrl-python PY] [--benchmarks minigrid atari ...]
+       [--rounds 3]
+"""
+
+import argparse
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+@dataclass(frozen=True)
+class Benchmark:
+    ours: str
+    ours_args: tuple[str, ...]
+    cleanrl: str
+    cleanrl_args: tuple[str, ...]
+    steps: int
+
+
+# The paper's settings on both sides: CleanRL takes minibatches by count (rollout / minibatch size), anneals the
+# learning rate unless told not to, and defaults to its own values where ours differ.
+BENCHMARKS = {
+    "minigrid": Benchmark(
+        "ppo_ultho_minigrid.py", ("--env-id", "MiniGrid-DoorKey-6x6-v0"),
+        "ppo.py", ("--env-id", "MiniGrid-DoorKey-6x6-v0", "--num-envs", "16", "--num-steps", "128",
+                   "--num-minibatches", "8", "--update-epochs", "4", "--learning-rate", "1e-3", "--no-anneal-lr",
+                   "--ent-coef", "0.01"),
+        102_400),
+    "pybullet": Benchmark(
+        "ppo_ultho_pybullet.py", ("--env-id", "HalfCheetahBulletEnv-v0"),
+        "ppo_continuous_action.py", ("--env-id", "HalfCheetahBulletEnv-v0", "--num-envs", "1", "--num-steps", "2048",
+                                     "--num-minibatches", "32", "--update-epochs", "10", "--learning-rate", "2e-4",
+                                     "--no-anneal-lr", "--no-clip-vloss"),
+        20_480),
+    "atari": Benchmark(
+        "ppo_ultho_atari.py", ("--env-id", "BattleZone"),
+        "ppo_atari.py", ("--env-id", "BattleZoneNoFrameskip-v4", "--num-envs", "8", "--num-steps", "128",
+                         "--num-minibatches", "4", "--update-epochs", "4", "--learning-rate", "2.5e-4",
+                         "--no-anneal-lr", "--clip-coef", "0.2"),
+        10_240),
+    "procgen": Benchmark(
+        "ppo_ultho_procgen.py", ("--env-id", "starpilot", "--num-levels", "0"),
+        "ppo_procgen.py", ("--env-id", "starpilot", "--num-envs", "64", "--num-steps", "256", "--num-minibatches", "8",
+                           "--update-epochs", "3", "--learning-rate", "5e-4", "--no-anneal-lr"),
+        16_384),
+}
+
+
+def timed(command: list[str], cwd: str) -> tuple[float, float]:
+    """(wall seconds, peak resident MB) of one process, start to exit."""
+    start = time.perf_counter()
+    process = subprocess.Popen(command, cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    _, status, usage = os.wait4(process.pid, 0)
+    wall = time.perf_counter() - start
+    process.returncode = os.waitstatus_to_exitcode(status)
+    stderr = process.stderr.read().decode(errors="replace")
+    if process.returncode != 0:
+        raise SystemExit(f"bench_cleanrl: {' '.join(command)} failed ({process.returncode}):\n{stderr[-2000:]}")
+    return wall, usage.ru_maxrss / 1024
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("cleanrl_dir", help="folder holding CleanRL's (adapted) scripts")
+    parser.add_argument("--cleanrl-python", default=sys.executable, help="interpreter for CleanRL's scripts")
+    parser.add_argument("--benchmarks", nargs="+", choices=sorted(BENCHMARKS), default=list(BENCHMARKS))
+    parser.add_argument("--rounds", type=int, default=3, help="alternating rounds (default 3)")
+    parser.add_argument("--extra", nargs="*", default=[], metavar="FLAG",
+                        help="flags added to our runs only, e.g. --extra --precision bf16")
+    args = parser.parse_args()
+    for benchmark in args.benchmarks:
+        path = os.path.join(args.cleanrl_dir, BENCHMARKS[benchmark].cleanrl)
+        if not os.path.isfile(path):
+            parser.error(f"{path}: no such file")
+
+    print(f"# CleanRL vs this project, whole-process wall time ({platform.machine()}, {os.cpu_count()} cores, "
+          f"Python {platform.python_version()}, {args.rounds} alternating rounds, medians)")
+    print("| benchmark | steps | CleanRL s | ours, ULTHO s | ours, PPO s | CleanRL / ours, ULTHO | CleanRL / ours, PPO "
+          "| peak MB CleanRL | peak MB ours, ULTHO | memory ours / CleanRL |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name in args.benchmarks:
+        bench = BENCHMARKS[name]
+        steps = str(bench.steps)
+        with tempfile.TemporaryDirectory() as scratch:
+            configs = {
+                "cleanrl": ([args.cleanrl_python, os.path.join(os.path.abspath(args.cleanrl_dir), bench.cleanrl),
+                             *bench.cleanrl_args, "--total-timesteps", steps, "--seed", "1"], scratch),
+                "ultho": ([sys.executable, os.path.join(REPO, bench.ours), *bench.ours_args, "--total-timesteps", steps,
+                           "--eval-episodes", "0", "--quiet", "--runs-dir", scratch, *args.extra], REPO),
+                "ppo": ([sys.executable, os.path.join(REPO, bench.ours), *bench.ours_args, "--total-timesteps", steps,
+                         "--eval-episodes", "0", "--quiet", "--runs-dir", scratch, "--no-ultho", *args.extra], REPO),
+            }
+            results: dict[str, list[tuple[float, float]]] = {key: [] for key in configs}
+            for round_ in range(args.rounds):
+                for key, (command, cwd) in configs.items():
+                    if key != "cleanrl":
+                        command = [*command, "--run-name", f"{key}{round_}"]
+                    results[key].append(timed(command, cwd))
+        wall = {key: statistics.median(w for w, _ in runs) for key, runs in results.items()}
+        peak = {key: max(m for _, m in runs) for key, runs in results.items()}
+        print(f"| {name} | {bench.steps:,} | {wall['cleanrl']:.1f} | {wall['ultho']:.1f} | {wall['ppo']:.1f} | "
+              f"{wall['cleanrl'] / wall['ultho']:.2f}x | {wall['cleanrl'] / wall['ppo']:.2f}x | {peak['cleanrl']:,.0f} | "
+              f"{peak['ultho']:,.0f} | {peak['ultho'] / peak['cleanrl']:.2f} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
