@@ -11,25 +11,7 @@ import pytest
 import torch
 
 from helpers import REPO, files_under, run, run_concurrently, run_ok, scalars, summary
-
-TOOL = "hpo_baselines.py"
-SCRIPT = "ppo_ultho_minigrid.py"
-STEP = 256  # one iteration: 4 envs x 64 steps; every Empty-5x5 episode (at most 100 steps) ends within two
-SPACE = {"learning_rate": [1e-3, 2.5e-3, 5e-3], "minibatch_size": [32, 64, 128], "vf_coef": [0.25, 0.5, 1.0]}
-SCRIPT_ARGS = ["--env-id", "MiniGrid-Empty-5x5-v0", "--num-envs", "4", "--num-steps", "64", "--minibatch-size", "64",
-               "--ultho-clusters", "learning_rate", "minibatch_size=32,64,128", "vf_coef", "--eval-episodes", "2"]
-RAY_TOKEN_FILE = os.path.expanduser("~/.ray/auth_token")
-FLAGS = {"learning_rate": "--learning-rate", "minibatch_size": "--minibatch-size", "vf_coef": "--vf-coef"}
-STUDY_FIELDS = {"format", "tool", "status", "method", "script", "script_args", "seed", "population", "samples",
-                "interval", "quantile", "resample_probability", "search_space", "fixed_settings", "budget",
-                "best_trial", "best_final_score", "best_settings_schedule", "max_observed_score", "exploits",
-                "trials", "errors"}
-
-
-def study(study_dir, *tool_args: str, total: int = 4 * STEP) -> subprocess.CompletedProcess:
-    """A study of two-iteration segments on the local Ray instance the tool starts (2 CPUs, a trial each)."""
-    return run(TOOL, SCRIPT, *tool_args, "--interval", str(2 * STEP), "--study-dir", str(study_dir), "--num-cpus", "2",
-               "--", *SCRIPT_ARGS, "--total-timesteps", str(total))
+from hpo_study import FLAGS, SCRIPT, SCRIPT_ARGS, SPACE, STEP, STUDY_FIELDS, TOOL, study
 
 
 def read(path) -> dict:
@@ -75,18 +57,6 @@ def assert_scores_recorded(record: dict) -> None:
     best_seen = max(every)
     assert record["max_observed_score"] == {"score": best_seen[0], "trial": best_seen[1], "step": best_seen[2]}
     assert record["max_observed_score"]["score"] >= record["best_final_score"]
-
-
-@pytest.fixture(scope="module")
-def pbt_study(tmp_path_factory):
-    study_dir = tmp_path_factory.mktemp("pbt") / "s"
-    token_before = os.path.exists(RAY_TOKEN_FILE)
-    result = study(study_dir, "--method", "pbt", "--population", "3", "--keep-checkpoints", "0")
-    assert result.returncode == 0, result.stdout + result.stderr
-    # The local Ray instance had a token of its own: Ray leaves none in the home directory, where every later
-    # `ray start` on the machine would demand it.
-    assert os.path.exists(RAY_TOKEN_FILE) == token_before
-    return study_dir, result
 
 
 def test_pbt_study_records_budget_exploits_and_best_trial(pbt_study):

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from helpers import run, run_concurrently, scalars, summary
+from hpo_study import SCRIPT_ARGS
 from ultho_report import (PROCGEN_EASY, PYBULLET_REFERENCE, Efficiency, aggregate_with_interval, coverage_groups,
                           game_of, normalized, raw_score, steps_to_threshold)
 
@@ -386,30 +387,25 @@ def test_bandit_variants_are_methods_of_their_own(tmp_path):
     assert "decision_minigrid_ULTHO_ts_improvement_running_W_10.png" in report
 
 
-def test_hpo_studies_are_rows_with_their_whole_budget(tmp_path):
-    """A real PBT study (population 2, exploits every two iterations) beside a PPO run: the study is one entry
-    scored by its best trial's final score, with the population's steps as its budget; its trials are not PPO
-    runs; its schedule is drawn."""
-    common = ["--env-id", ENVS[0], "--num-envs", "4", "--num-steps", "64", "--minibatch-size", "64",
-              "--ultho-clusters", "learning_rate", "minibatch_size=32,64,128", "vf_coef", "--eval-episodes", "2"]
-    result = run("hpo_baselines.py", SCRIPT, "--method", "pbt", "--population", "2", "--seed", "1", "--interval",
-                 "512", "--num-cpus", "2", "--study-dir", str(tmp_path / "study"), "--quiet", "--", *common,
-                 "--total-timesteps", "1024")
-    assert result.returncode == 0, result.stderr
-    result = run(SCRIPT, *common, "--no-ultho", "--total-timesteps", "1024", "--quiet", "--runs-dir",
+def test_hpo_studies_are_rows_with_their_whole_budget(pbt_study, tmp_path):
+    """The real PBT study of the shared fixture (population 3, exploits every two iterations) beside a PPO run of
+    the same settings: the study is one entry scored by its best trial's final score, with the population's steps
+    as its budget; its trials are not PPO runs; its schedule is drawn."""
+    study_dir, _ = pbt_study
+    result = run(SCRIPT, *SCRIPT_ARGS, "--no-ultho", "--total-timesteps", "1024", "--quiet", "--runs-dir",
                  str(tmp_path / "runs"), "--run-name", "ppo")
     assert result.returncode == 0, result.stderr
-    result = run(REPORT, str(tmp_path / "study"), str(tmp_path / "runs"), "--out", str(tmp_path / "out"),
+    result = run(REPORT, str(study_dir), str(tmp_path / "runs"), "--out", str(tmp_path / "out"),
                  "--reps", "500", "--no-per-run")
     assert result.returncode == 0 and "warning" not in result.stderr, result.stderr
-    record = json.loads((tmp_path / "study" / "study.json").read_text())
-    finals = [summary(str(tmp_path / "study" / t["run_dir"]))["final_score"] for t in record["trials"]]
+    record = json.loads((study_dir / "study.json").read_text())
+    finals = [summary(str(study_dir / t["run_dir"]))["final_score"] for t in record["trials"]]
     rows = table(tmp_path / "out")
-    assert list(rows) == ["PPO", "PBT (population 2)"]
+    assert list(rows) == ["PPO", "PBT (population 3)"]
     assert int(rows["PPO"]["runs"]) == 1  # the trials are the study's, not PPO runs
-    pbt = rows["PBT (population 2)"]
+    pbt = rows["PBT (population 3)"]
     assert int(pbt["runs"]) == 1 and float(pbt["mean"]) == pytest.approx(max(finals))
-    assert int(pbt["budget_steps_min"]) == int(pbt["budget_steps_max"]) == 2 * 1024 == record["budget"]["total_steps"]
+    assert int(pbt["budget_steps_min"]) == int(pbt["budget_steps_max"]) == 3 * 1024 == record["budget"]["total_steps"]
     report = (tmp_path / "out" / "report.md").read_text()
     seen = record["max_observed_score"]
     assert f"({seen['trial']}, {seen['step']:,}) | {len(record['exploits'])} |" in report
