@@ -460,6 +460,35 @@ def sample(log_probs: torch.Tensor, generator: torch.Generator | None = None) ->
     return (log_probs.exp() / torch.empty_like(log_probs).exponential_(generator=generator)).argmax(-1)
 
 
+def ppo_loss(agent: Agent, args: Args, obs: torch.Tensor, actions: torch.Tensor, old_logprobs: torch.Tensor,
+             advantages: torch.Tensor, returns: torch.Tensor, old_values: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """PPO's clipped loss on these samples (advantages as the update uses them) and its statistics: policy loss,
+    value loss, entropy, old approximate KL, approximate KL, clip fraction."""
+    new_log_probs, newvalue = agent(obs)
+    newlogprob = new_log_probs.gather(1, actions.unsqueeze(1)).squeeze(1)
+    entropy = -(new_log_probs.exp() * new_log_probs).sum(-1)
+    logratio = newlogprob - old_logprobs
+    ratio = logratio.exp()
+    with torch.no_grad():
+        old_approx_kl = (-logratio).mean()
+        approx_kl = ((ratio - 1) - logratio).mean()
+        clipfrac = ((ratio - 1.0).abs() > args.clip_coef).float().mean()
+
+    pg_loss1 = -advantages * ratio
+    pg_loss2 = -advantages * torch.clamp(ratio, 1 - args.clip_coef, 1 + args.clip_coef)
+    pg_loss = torch.max(pg_loss1, pg_loss2).mean()
+
+    if args.clip_vloss:
+        v_loss_unclipped = (newvalue - returns) ** 2
+        v_clipped = old_values + torch.clamp(newvalue - old_values, -args.clip_coef, args.clip_coef)
+        v_loss = 0.5 * torch.max(v_loss_unclipped, (v_clipped - returns) ** 2).mean()
+    else:
+        v_loss = 0.5 * ((newvalue - returns) ** 2).mean()
+    entropy_loss = entropy.mean()
+    loss = pg_loss - args.ent_coef * entropy_loss + v_loss * args.vf_coef
+    return loss, torch.stack([pg_loss, v_loss, entropy_loss, old_approx_kl, approx_kl, clipfrac]).detach()
+
+
 def atomic_write_bytes(path: str, data: bytes) -> None:
     tmp = f"{path}.tmp"
     with open(tmp, "wb") as f:
@@ -552,6 +581,7 @@ def main(args: Args) -> None:
     start_iteration, global_step, elapsed_before = 1, 0, 0.0
     eval_seconds = 0.0  # wall time of --eval-every tests, left out of the training time and SPS
     ultho_seconds = 0.0  # wall time spent on ULTHO's own work, reported as its share of the run
+    rollout_seconds, update_seconds = 0.0, 0.0  # wall time of acting and stepping, and of the PPO update
     episode_return = np.zeros(args.num_envs)
     episode_length = np.zeros(args.num_envs, dtype=np.int64)
     recent_returns: deque[float] = deque(maxlen=100)
@@ -572,6 +602,8 @@ def main(args: Args) -> None:
         start_iteration = checkpoint["iteration"] + 1
         global_step = checkpoint["global_step"]
         elapsed_before, ultho_seconds = checkpoint["elapsed"], checkpoint["ultho_seconds"]
+        # Checkpoints from before these were recorded count from here.
+        rollout_seconds, update_seconds = checkpoint.get("rollout_seconds", 0.0), checkpoint.get("update_seconds", 0.0)
         episode_return, episode_length = checkpoint["episode_return"], checkpoint["episode_length"]
         recent_returns.extend(checkpoint["recent_returns"])
         recent_lengths.extend(checkpoint["recent_lengths"])
@@ -600,7 +632,7 @@ def main(args: Args) -> None:
             "script": SCRIPT, "format": CHECKPOINT_FORMAT, "config": config,
             "settings": {name: getattr(args, name) for name in TUNABLE},
             "iteration": iteration, "global_step": global_step, "elapsed": elapsed_before + time.time() - start_time - eval_seconds,
-            "ultho_seconds": ultho_seconds,
+            "ultho_seconds": ultho_seconds, "rollout_seconds": rollout_seconds, "update_seconds": update_seconds,
             "agent": agent.state_dict(), "optimizer": optimizer.state_dict(),
             "bandit": bandit.state_dict() if bandit is not None else None,
             "reward_normalizer": reward_normalizer.state_dict() if reward_normalizer is not None else None,
@@ -626,6 +658,7 @@ def main(args: Args) -> None:
     start_time, start_step = time.time(), global_step
     for iteration in range(start_iteration, num_iterations + 1):
         # 1. Collect a rollout with the current policy.
+        rollout_start = time.perf_counter()
         iteration_returns: list[float] = []
         iteration_lengths: list[int] = []
         for step in range(args.num_steps):
@@ -652,6 +685,7 @@ def main(args: Args) -> None:
                 episode_length[finished] = 0
         recent_returns.extend(iteration_returns)
         recent_lengths.extend(iteration_lengths)
+        rollout_seconds += time.perf_counter() - rollout_start
 
         # 2. Generalized advantage estimation.
         with torch.no_grad():
@@ -689,6 +723,7 @@ def main(args: Args) -> None:
             ultho_seconds += time.perf_counter() - tick
 
         # 4. PPO update with the settings in force.
+        update_start = time.perf_counter()
         b_obs = obs.reshape((-1,) + envs.single_observation_shape)
         b_logprobs, b_actions = logprobs.reshape(-1), actions.reshape(-1)
         b_advantages, b_returns, b_values = advantages.reshape(-1), returns.reshape(-1), values.reshape(-1)
@@ -707,33 +742,12 @@ def main(args: Args) -> None:
                 mb_sums = torch.zeros(6, device=device)
                 for chunk_start in range(0, len(mb), args.update_chunk):
                     chunk = mb[chunk_start:chunk_start + args.update_chunk]
-                    chunk_advantages = mb_advantages[chunk_start:chunk_start + args.update_chunk]
                     weight = len(chunk) / len(mb)
-                    new_log_probs, newvalue = agent(b_obs[chunk])
-                    newlogprob = new_log_probs.gather(1, b_actions[chunk].unsqueeze(1)).squeeze(1)
-                    entropy = -(new_log_probs.exp() * new_log_probs).sum(-1)
-                    logratio = newlogprob - b_logprobs[chunk]
-                    ratio = logratio.exp()
-                    with torch.no_grad():
-                        old_approx_kl = (-logratio).mean()
-                        approx_kl = ((ratio - 1) - logratio).mean()
-                        clipfrac = ((ratio - 1.0).abs() > args.clip_coef).float().mean()
-
-                    pg_loss1 = -chunk_advantages * ratio
-                    pg_loss2 = -chunk_advantages * torch.clamp(ratio, 1 - args.clip_coef, 1 + args.clip_coef)
-                    pg_loss = torch.max(pg_loss1, pg_loss2).mean()
-
-                    if args.clip_vloss:
-                        v_loss_unclipped = (newvalue - b_returns[chunk]) ** 2
-                        v_clipped = b_values[chunk] + torch.clamp(newvalue - b_values[chunk], -args.clip_coef, args.clip_coef)
-                        v_loss = 0.5 * torch.max(v_loss_unclipped, (v_clipped - b_returns[chunk]) ** 2).mean()
-                    else:
-                        v_loss = 0.5 * ((newvalue - b_returns[chunk]) ** 2).mean()
-                    entropy_loss = entropy.mean()
-                    loss = pg_loss - args.ent_coef * entropy_loss + v_loss * args.vf_coef
-
+                    loss, stats = ppo_loss(agent, args, b_obs[chunk], b_actions[chunk], b_logprobs[chunk],
+                                           mb_advantages[chunk_start:chunk_start + args.update_chunk], b_returns[chunk],
+                                           b_values[chunk])
                     (loss * weight).backward()
-                    mb_sums += weight * torch.stack([pg_loss, v_loss, entropy_loss, old_approx_kl, approx_kl, clipfrac]).detach()
+                    mb_sums += weight * stats
                 nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
                 optimizer.step()
                 loss_sums += mb_sums
@@ -741,6 +755,7 @@ def main(args: Args) -> None:
             if args.target_kl is not None and mb_sums[4].item() > args.target_kl:
                 break
         pg_mean, v_mean, ent_mean, old_kl_mean, kl_mean, clipfrac_mean = (loss_sums / num_minibatches).tolist()
+        update_seconds += time.perf_counter() - update_start
         if not all(map(math.isfinite, (pg_mean, v_mean, ent_mean))):
             progress.close()
             writer.close()
@@ -828,6 +843,8 @@ def main(args: Args) -> None:
         "sps": global_step / wall_time if wall_time > 0 else None,
         "ultho_seconds": ultho_seconds,
         "ultho_share": ultho_seconds / wall_time if wall_time > 0 else None,
+        "rollout_seconds": rollout_seconds,
+        "update_seconds": update_seconds,
         "device": str(device),
         "final_score": train_score,
         "final_score_episodes": len(recent_returns),
@@ -844,6 +861,7 @@ def main(args: Args) -> None:
         "normalized_train_score": normalized_score(args.env_id, train_score),
         "normalized_test_score": normalized_score(args.env_id, test_score),
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "peak_cuda_mb": torch.cuda.max_memory_allocated(device) / 2**20 if device.type == "cuda" else None,
         "settings_in_force": {name: getattr(args, name) for name in tuned},
         "bandit": None if bandit is None else {
             "search_space": bandit.search_space,

@@ -61,6 +61,9 @@ def test_smoke_run_summary_fields(smoke_run):
     assert s["global_step"] == 2048 and s["iterations"] == 4 and s["ultho"] is True
     assert s["settings"]["learning_rate"] == 2.5e-4 and s["settings"]["num_envs"] == 4
     assert s["wall_time_s"] > 0 and s["sps"] > 0 and 0 <= s["ultho_share"] < 1
+    assert s["rollout_seconds"] > 0 and s["update_seconds"] > 0
+    assert s["rollout_seconds"] + s["update_seconds"] < s["wall_time_s"]
+    assert s["peak_rss_mb"] > 0 and (s["peak_cuda_mb"] is None) == (s["device"] == "cpu")
     assert 0 < s["final_score_episodes"] <= 100
     assert s["human_normalized_score"] == pytest.approx((s["final_score"] - QBERT_RANDOM) / (QBERT_HUMAN - QBERT_RANDOM))
     assert s["eval"]["episodes"] == 2 and len(s["eval"]["returns"]) == 2

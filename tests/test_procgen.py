@@ -58,6 +58,9 @@ def test_smoke_run_summary_has_train_and_test_scores(smoke_run):
     assert s["settings"]["num_levels"] == 200 and s["settings"]["start_level"] == 0
     assert s["settings"]["gamma"] == 0.999 and s["settings"]["norm_reward"] is True
     assert s["wall_time_s"] > 0 and s["sps"] > 0 and s["peak_rss_mb"] > 0
+    assert s["rollout_seconds"] > 0 and s["update_seconds"] > 0
+    assert s["rollout_seconds"] + s["update_seconds"] < s["wall_time_s"]
+    assert (s["peak_cuda_mb"] is None) == (s["device"] == "cpu")
     assert s["train_score"] == s["final_score"]
     assert s["eval"]["episodes"] == 3 and len(s["eval"]["returns"]) == 3
     assert s["test_score"] == pytest.approx(sum(s["eval"]["returns"]) / 3)
