@@ -72,6 +72,10 @@ EASY_MODE_RANGE = {
 }
 """(R_min, R_max) per game in easy mode (Cobbe et al. 2020): normalized score = (R - R_min) / (R_max - R_min)."""
 
+CPU_UPDATE_CHUNK = 512
+"""--update-chunk 0 on the CPU: a minibatch of more samples is split into chunks of this many (the IMPALA CNN's
+float32 activations of 512 frames take about 0.8 GB)."""
+
 
 @dataclass
 class Args:
@@ -126,15 +130,19 @@ class Args:
     """value loss coefficient"""
     max_grad_norm: float = 0.5
     """maximum norm for gradient clipping"""
-    update_chunk: int = 512
-    """samples per forward/backward pass inside a minibatch; the chunks' gradients are summed before the step,
-    so the update is the minibatch's. Bounds memory: the IMPALA CNN's activations for 2048 frames take about
-    3 GB, for 512 about 0.8 GB (it does not change the paper's minibatch size)"""
+    update_chunk: int = 0
+    """samples per forward/backward pass inside a minibatch; the chunks' gradients, each weighted by its share,
+    are summed before the step, so the update is the minibatch's. 0 (automatic): the whole minibatch at once on
+    CUDA, chunks of at most 512 on the CPU. Bounds memory: the IMPALA CNN's float32 activations for 2048 frames
+    take about 3 GB, for 512 about 0.8 GB (it does not change the paper's minibatch size)"""
     target_kl: Optional[float] = None
     """stop an update's epochs early once the approximate KL exceeds this (off by default)"""
     norm_reward: bool = True
     """scale rewards by the running std of the discounted return and clip them to +-10 (gym's NormalizeReward,
     as CleanRL); logged and scored returns are always the raw game returns"""
+    env_threads: int = 1
+    """worker threads of procgen's vector environment (0: the games step in the training thread). 1 suits a
+    2-core machine, whose other core is torch's; a many-core GPU host wants more (e.g. 8 of 16 cores)"""
 
     # ULTHO
     ultho: bool = True
@@ -266,14 +274,16 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
                              f"{args.init_from} is already at step {checkpoint['global_step']}")
     if args.env_id not in GAMES:
         raise UsageError(f"--env-id {args.env_id}: not a Procgen game (one of {', '.join(GAMES)})")
-    for name in ("num_envs", "num_steps", "total_timesteps", "update_epochs", "update_chunk", "checkpoint_every"):
+    for name in ("num_envs", "num_steps", "total_timesteps", "update_epochs", "checkpoint_every"):
         if getattr(args, name) <= 0:
             raise UsageError(f"--{name.replace('_', '-')} must be positive, got {getattr(args, name)}")
     if args.torch_threads < 0:
         raise UsageError(f"--torch-threads must be >= 0 (0: one per core), got {args.torch_threads}")
-    for name in ("eval_episodes", "eval_every", "num_levels", "start_level"):
+    for name in ("eval_episodes", "eval_every", "num_levels", "start_level", "env_threads"):
         if getattr(args, name) < 0:
             raise UsageError(f"--{name.replace('_', '-')} must be >= 0, got {getattr(args, name)}")
+    if args.update_chunk < 0:
+        raise UsageError(f"--update-chunk must be >= 0 (0: automatic), got {args.update_chunk}")
     if args.start_level + args.num_levels >= 2**31:
         raise UsageError(f"--start-level {args.start_level} with --num-levels {args.num_levels} exceeds procgen's 31-bit level seeds")
     batch_size = args.num_envs * args.num_steps
@@ -331,11 +341,11 @@ class ProcgenVecEnv:
     checkpoint resumes the environments exactly.
     """
 
-    def __init__(self, env_id: str, num_envs: int, num_levels: int, start_level: int, seed: int):
-        # num_threads=1: on a 2-core machine the second core is torch's; procgen's own pool only contends.
+    def __init__(self, env_id: str, num_envs: int, num_levels: int, start_level: int, seed: int, num_threads: int):
+        # A game's steps do not depend on the thread that runs them: any num_threads gives the same games.
         self.env = procgen.ProcgenGym3Env(num=num_envs, env_name=env_id, num_levels=num_levels,
                                           start_level=start_level, distribution_mode="easy", rand_seed=seed,
-                                          num_threads=1)
+                                          num_threads=num_threads)
         self.num_envs = num_envs
         self.single_observation_shape = self.env.ob_space["rgb"].shape  # (64, 64, 3), uint8
         self.single_action_n = self.env.ac_space.eltype.n
@@ -366,8 +376,8 @@ def make_envs(args: "Args", num_envs: int, test: bool, seed: int) -> ProcgenVecE
     """Training environments draw levels start_level .. start_level + num_levels - 1; test environments draw
     from the full distribution (num_levels=0)."""
     if test:
-        return ProcgenVecEnv(args.env_id, num_envs, num_levels=0, start_level=0, seed=seed)
-    return ProcgenVecEnv(args.env_id, num_envs, args.num_levels, args.start_level, seed)
+        return ProcgenVecEnv(args.env_id, num_envs, num_levels=0, start_level=0, seed=seed, num_threads=args.env_threads)
+    return ProcgenVecEnv(args.env_id, num_envs, args.num_levels, args.start_level, seed, num_threads=args.env_threads)
 
 
 class RewardNormalizer:
@@ -458,6 +468,14 @@ def sample(log_probs: torch.Tensor, generator: torch.Generator | None = None) ->
     """One action per row. argmax(p / E) with E ~ Exp(1) is an exact categorical sample (the exponential
     race) and costs less than torch.multinomial on small batches."""
     return (log_probs.exp() / torch.empty_like(log_probs).exponential_(generator=generator)).argmax(-1)
+
+
+def update_chunk_size(args: Args, device: torch.device) -> int:
+    """Samples per forward/backward pass of the update: --update-chunk, or for 0 the whole minibatch on CUDA
+    (a GPU holds its activations) and at most CPU_UPDATE_CHUNK on the CPU."""
+    if args.update_chunk > 0:
+        return args.update_chunk
+    return args.minibatch_size if device.type == "cuda" else min(args.minibatch_size, CPU_UPDATE_CHUNK)
 
 
 def ppo_loss(agent: Agent, args: Args, obs: torch.Tensor, actions: torch.Tensor, old_logprobs: torch.Tensor,
@@ -736,15 +754,16 @@ def main(args: Args) -> None:
                 mb_advantages = b_advantages[mb]
                 if args.norm_adv:
                     mb_advantages = (mb_advantages - mb_advantages.mean()) / (mb_advantages.std() + 1e-8)
-                # The minibatch's gradient, summed over chunks of --update-chunk samples (each weighted by its
-                # share of the minibatch), so the IMPALA CNN's activations never exist for all 2048 at once.
+                # The minibatch's gradient, summed over chunks of update_chunk samples (each weighted by its share
+                # of the minibatch), so on the CPU the IMPALA CNN's activations never exist for all 2048 at once.
+                update_chunk = update_chunk_size(args, device)
                 optimizer.zero_grad(set_to_none=True)
                 mb_sums = torch.zeros(6, device=device)
-                for chunk_start in range(0, len(mb), args.update_chunk):
-                    chunk = mb[chunk_start:chunk_start + args.update_chunk]
+                for chunk_start in range(0, len(mb), update_chunk):
+                    chunk = mb[chunk_start:chunk_start + update_chunk]
                     weight = len(chunk) / len(mb)
                     loss, stats = ppo_loss(agent, args, b_obs[chunk], b_actions[chunk], b_logprobs[chunk],
-                                           mb_advantages[chunk_start:chunk_start + args.update_chunk], b_returns[chunk],
+                                           mb_advantages[chunk_start:chunk_start + update_chunk], b_returns[chunk],
                                            b_values[chunk])
                     (loss * weight).backward()
                     mb_sums += weight * stats

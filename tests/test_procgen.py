@@ -3,6 +3,7 @@
 import math
 import os
 
+import numpy as np
 import pytest
 import torch
 
@@ -141,7 +142,8 @@ BAD_INPUTS = [
     (["--start-level", "-5"], "--start-level must be >= 0, got -5"),
     (["--eval-every", "-1"], "--eval-every must be >= 0, got -1"),
     (["--eval-episodes", "-1"], "--eval-episodes must be >= 0, got -1"),
-    (["--update-chunk", "0"], "--update-chunk must be positive, got 0"),
+    (["--update-chunk", "-1"], "--update-chunk must be >= 0 (0: automatic), got -1"),
+    (["--env-threads", "-1"], "--env-threads must be >= 0, got -1"),
     (["--minibatch-size", "3000"], "3000 does not divide"),
     (["--ultho-clusters", "momentum"], "momentum"),
     (["--ultho-clusters", "minibatch_size=1000,2048"], "1000 does not divide"),
@@ -178,7 +180,7 @@ def test_help_lists_every_flag():
     result = run(SCRIPT, "--help")
     assert result.returncode == 0
     for flag in ("--env-id", "--num-levels", "--start-level", "--total-timesteps", "--minibatch-size",
-                 "--update-chunk", "--norm-reward", "--ultho-clusters", "--no-ultho", "--ultho-utility", "--resume",
+                 "--update-chunk", "--env-threads", "--norm-reward", "--ultho-clusters", "--no-ultho", "--ultho-utility", "--resume",
                  "--checkpoint-every", "--eval-episodes", "--eval-every", "--quiet"):
         assert flag in result.stdout
 
@@ -208,3 +210,36 @@ def test_other_procgen_games_train_by_name(tmp_path, game):
            "--eval-episodes", "1", "--quiet", "--runs-dir", str(tmp_path), "--run-name", game)
     s = summary(str(tmp_path / game))
     assert s["env_id"] == game and s["global_step"] == 32 and s["eval"]["episodes"] == 1
+
+
+def test_update_chunk_zero_is_the_whole_minibatch_on_cuda_and_at_most_512_on_the_cpu():
+    import ppo_ultho_procgen as script
+
+    cpu, cuda = torch.device("cpu"), torch.device("cuda")
+    assert script.Args().update_chunk == 0
+    for minibatch_size, on_the_cpu in ((2048, 512), (1024, 512), (512, 512), (256, 256)):
+        automatic = script.Args(minibatch_size=minibatch_size)
+        assert script.update_chunk_size(automatic, cpu) == on_the_cpu
+        assert script.update_chunk_size(automatic, cuda) == minibatch_size
+    explicit = script.Args(minibatch_size=2048, update_chunk=48)
+    assert script.update_chunk_size(explicit, cpu) == script.update_chunk_size(explicit, cuda) == 48
+
+
+def test_env_threads_reach_procgen_and_do_not_change_the_games():
+    import ppo_ultho_procgen as script
+
+    actions = np.random.default_rng(0).integers(0, 15, (100, 4))
+    games = []
+    for threads in (0, 1, 3):
+        before = len(os.listdir("/proc/self/task"))
+        envs = script.make_envs(script.Args(env_threads=threads), 4, test=False, seed=7)
+        assert len(os.listdir("/proc/self/task")) - before == threads  # 0: stepped in the caller's thread
+        played = [envs.observation()]
+        for a in actions:
+            obs, reward, terminated, _, _ = envs.step(a)
+            played += [obs.copy(), reward.copy(), terminated.copy()]
+        assert any(x.any() for x in played[3::3]), "no game ended: the comparison would miss resets"
+        games.append(played)
+        del envs
+    for other in games[1:]:
+        assert all(np.array_equal(x, y) for x, y in zip(games[0], other))
