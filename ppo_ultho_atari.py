@@ -13,7 +13,9 @@ paper's "reward normalization: yes"), not sign-clipped. Every return that is log
 unclipped game score of a whole game (all lives).
 
 Network: CleanRL's Nature CNN (three convolutions, a 512-unit layer, linear actor and critic heads), on the
-observation divided by 255, in channels-last memory order (measured faster on the CPU).
+observation divided by 255, in channels-last memory order (measured faster on the CPU). ``--precision bf16``
+runs its convolutions and linear layers under bfloat16 autocast; its outputs, and all of PPO's arithmetic after
+them, stay float32 (docs/precision.md).
 
 Defaults are the paper's ALE settings (Appendix B, Tables 2-3; ``ULTHO_SPEC.md``).
 
@@ -89,6 +91,10 @@ class Args:
     torch_threads: int = 0
     """CPU threads for torch (0: one per core, torch's own default). On an idle 2-core machine two threads
     make the CNN's update about 1.7x faster than one; set 1 when other jobs share the cores"""
+    precision: Literal["float32", "bf16"] = "float32"
+    """float32 (the paper's) or bf16: the network's convolutions and linear layers under bfloat16 autocast, on
+    the CPU (AVX512-BF16 or AMX) or CUDA; weights, optimizer, log-probabilities, ratio and losses stay float32
+    (docs/precision.md). A resumed run keeps its own"""
     run_name: Optional[str] = None
     """name of the run directory under --runs-dir (default: {env_id}__{exp_name}__{seed}__{unix time})"""
     runs_dir: str = "runs"
@@ -399,8 +405,9 @@ def layer_init(layer: nn.Module, std: float = np.sqrt(2), bias_const: float = 0.
 class Agent(nn.Module):
     """The Nature CNN with a shared torso, as in CleanRL's ppo_atari."""
 
-    def __init__(self, num_actions: int):
+    def __init__(self, num_actions: int, precision: str):
         super().__init__()
+        self.precision = precision  # not part of the state: a checkpoint loads into either precision
         self.network = nn.Sequential(
             layer_init(nn.Conv2d(4, 32, 8, stride=4)), nn.ReLU(),
             layer_init(nn.Conv2d(32, 64, 4, stride=2)), nn.ReLU(),
@@ -418,12 +425,17 @@ class Agent(nn.Module):
         return self.network(obs.contiguous(memory_format=torch.channels_last).float().div_(255.0))
 
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """uint8 observations (N, 4, 84, 84) -> (action log-probabilities (N, A), values (N,))."""
-        hidden = self.features(obs)
-        return F.log_softmax(self.actor(hidden), dim=-1), self.critic(hidden).squeeze(-1)
+        """uint8 observations (N, 4, 84, 84) -> (action log-probabilities (N, A), values (N,)), both float32."""
+        with torch.autocast(obs.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16"):
+            hidden = self.features(obs)
+            logits, value = self.actor(hidden), self.critic(hidden)
+        # Outside autocast and in float32: the log-softmax, and all of PPO's arithmetic on what it returns.
+        return F.log_softmax(logits.float(), dim=-1), value.float().squeeze(-1)
 
     def get_value(self, obs: torch.Tensor) -> torch.Tensor:
-        return self.critic(self.features(obs)).squeeze(-1)
+        with torch.autocast(obs.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16"):
+            value = self.critic(self.features(obs))
+        return value.float().squeeze(-1)
 
 
 def sample(log_probs: torch.Tensor) -> torch.Tensor:
@@ -537,7 +549,7 @@ def main(args: Args) -> None:
     tuned = list(space) if space is not None else list(SEARCH_SPACE)
 
     envs = make_envs(args, args.num_envs)
-    agent = Agent(envs.single_action_space.n).to(device)
+    agent = Agent(envs.single_action_space.n, args.precision).to(device)
     optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5, fused=True)
 
     start_iteration, global_step, elapsed_before = 1, 0, 0.0
@@ -827,6 +839,7 @@ def main(args: Args) -> None:
         "rollout_seconds": rollout_seconds,
         "update_seconds": update_seconds,
         "device": str(device),
+        "precision": args.precision,
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
         "peak_cuda_mb": torch.cuda.max_memory_allocated(device) / 2**20 if device.type == "cuda" else None,
         "final_score": final_score,
