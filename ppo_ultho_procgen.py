@@ -148,7 +148,8 @@ class Args:
     as CleanRL); logged and scored returns are always the raw game returns"""
     env_threads: int = 1
     """worker threads of procgen's vector environment (0: the games step in the training thread). 1 suits a
-    2-core machine, whose other core is torch's; a many-core GPU host wants more (e.g. 8 of 16 cores)"""
+    2-core machine, whose other core is torch's; a 16-core GPU host wants more (benchmarks/bench_procgen.py
+    --env-threads N measures it). The games are the same for any number"""
 
     # ULTHO
     ultho: bool = True
