@@ -13,7 +13,9 @@ paper's "reward normalization: yes"), not sign-clipped. Every return that is log
 unclipped game score of a whole game (all lives).
 
 Network: CleanRL's Nature CNN (three convolutions, a 512-unit layer, linear actor and critic heads), on the
-observation divided by 255, in channels-last memory order (measured faster on the CPU).
+observation divided by 255, in channels-last memory order (measured faster on the CPU). ``--precision bf16``
+runs its convolutions and linear layers under bfloat16 autocast; its outputs, and all of PPO's arithmetic after
+them, stay float32 (docs/precision.md).
 
 Defaults are the paper's ALE settings (Appendix B, Tables 2-3; ``ULTHO_SPEC.md``).
 
@@ -29,6 +31,7 @@ import math
 import os
 import random
 import re
+import resource
 import sys
 import time
 from collections import deque
@@ -88,6 +91,10 @@ class Args:
     torch_threads: int = 0
     """CPU threads for torch (0: one per core, torch's own default). On an idle 2-core machine two threads
     make the CNN's update about 1.7x faster than one; set 1 when other jobs share the cores"""
+    precision: Literal["float32", "bf16"] = "float32"
+    """float32 (the paper's) or bf16: the network's convolutions and linear layers under bfloat16 autocast, on
+    the CPU (AVX512-BF16 or AMX) or CUDA; weights, optimizer, log-probabilities, ratio and losses stay float32
+    (docs/precision.md). A resumed run keeps its own"""
     run_name: Optional[str] = None
     """name of the run directory under --runs-dir (default: {env_id}__{exp_name}__{seed}__{unix time})"""
     runs_dir: str = "runs"
@@ -398,8 +405,9 @@ def layer_init(layer: nn.Module, std: float = np.sqrt(2), bias_const: float = 0.
 class Agent(nn.Module):
     """The Nature CNN with a shared torso, as in CleanRL's ppo_atari."""
 
-    def __init__(self, num_actions: int):
+    def __init__(self, num_actions: int, precision: str):
         super().__init__()
+        self.precision = precision  # not part of the state: a checkpoint loads into either precision
         self.network = nn.Sequential(
             layer_init(nn.Conv2d(4, 32, 8, stride=4)), nn.ReLU(),
             layer_init(nn.Conv2d(32, 64, 4, stride=2)), nn.ReLU(),
@@ -417,18 +425,52 @@ class Agent(nn.Module):
         return self.network(obs.contiguous(memory_format=torch.channels_last).float().div_(255.0))
 
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """uint8 observations (N, 4, 84, 84) -> (action log-probabilities (N, A), values (N,))."""
-        hidden = self.features(obs)
-        return F.log_softmax(self.actor(hidden), dim=-1), self.critic(hidden).squeeze(-1)
+        """uint8 observations (N, 4, 84, 84) -> (action log-probabilities (N, A), values (N,)), both float32."""
+        with torch.autocast(obs.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16"):
+            hidden = self.features(obs)
+            logits, value = self.actor(hidden), self.critic(hidden)
+        # Outside autocast and in float32: the log-softmax, and all of PPO's arithmetic on what it returns.
+        return F.log_softmax(logits.float(), dim=-1), value.float().squeeze(-1)
 
     def get_value(self, obs: torch.Tensor) -> torch.Tensor:
-        return self.critic(self.features(obs)).squeeze(-1)
+        with torch.autocast(obs.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16"):
+            value = self.critic(self.features(obs))
+        return value.float().squeeze(-1)
 
 
 def sample(log_probs: torch.Tensor) -> torch.Tensor:
     """One action per row. argmax(p / E) with E ~ Exp(1) is an exact categorical sample (the exponential
     race) and costs less than half of torch.multinomial on these tiny batches."""
     return (log_probs.exp() / torch.empty_like(log_probs).exponential_()).argmax(-1)
+
+
+def ppo_loss(agent: Agent, args: Args, obs: torch.Tensor, actions: torch.Tensor, old_logprobs: torch.Tensor,
+             advantages: torch.Tensor, returns: torch.Tensor, old_values: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """PPO's clipped loss on these samples (advantages as the update uses them) and its statistics: policy loss,
+    value loss, entropy, old approximate KL, approximate KL, clip fraction."""
+    new_log_probs, newvalue = agent(obs)
+    newlogprob = new_log_probs.gather(1, actions.unsqueeze(1)).squeeze(1)
+    entropy = -(new_log_probs.exp() * new_log_probs).sum(-1)
+    logratio = newlogprob - old_logprobs
+    ratio = logratio.exp()
+    with torch.no_grad():
+        old_approx_kl = (-logratio).mean()
+        approx_kl = ((ratio - 1) - logratio).mean()
+        clipfrac = ((ratio - 1.0).abs() > args.clip_coef).float().mean()
+
+    pg_loss1 = -advantages * ratio
+    pg_loss2 = -advantages * torch.clamp(ratio, 1 - args.clip_coef, 1 + args.clip_coef)
+    pg_loss = torch.max(pg_loss1, pg_loss2).mean()
+
+    if args.clip_vloss:
+        v_loss_unclipped = (newvalue - returns) ** 2
+        v_clipped = old_values + torch.clamp(newvalue - old_values, -args.clip_coef, args.clip_coef)
+        v_loss = 0.5 * torch.max(v_loss_unclipped, (v_clipped - returns) ** 2).mean()
+    else:
+        v_loss = 0.5 * ((newvalue - returns) ** 2).mean()
+    entropy_loss = entropy.mean()
+    loss = pg_loss - args.ent_coef * entropy_loss + v_loss * args.vf_coef
+    return loss, torch.stack([pg_loss, v_loss, entropy_loss, old_approx_kl, approx_kl, clipfrac]).detach()
 
 
 def atomic_write_bytes(path: str, data: bytes) -> None:
@@ -507,11 +549,12 @@ def main(args: Args) -> None:
     tuned = list(space) if space is not None else list(SEARCH_SPACE)
 
     envs = make_envs(args, args.num_envs)
-    agent = Agent(envs.single_action_space.n).to(device)
+    agent = Agent(envs.single_action_space.n, args.precision).to(device)
     optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5, fused=True)
 
     start_iteration, global_step, elapsed_before = 1, 0, 0.0
     ultho_seconds = 0.0  # wall time spent on ULTHO's own work, reported as its share of the run
+    rollout_seconds, update_seconds = 0.0, 0.0  # wall time of acting and stepping, and of the PPO update
     return_rms = RunningMeanStd()  # of the discounted return, whose scale normalizes the rewards
     recent_returns: deque[float] = deque(maxlen=100)
     recent_lengths: deque[int] = deque(maxlen=100)
@@ -529,6 +572,8 @@ def main(args: Args) -> None:
         start_iteration = checkpoint["iteration"] + 1
         global_step = checkpoint["global_step"]
         elapsed_before, ultho_seconds = checkpoint["elapsed"], checkpoint["ultho_seconds"]
+        # Checkpoints from before these were recorded count from here.
+        rollout_seconds, update_seconds = checkpoint.get("rollout_seconds", 0.0), checkpoint.get("update_seconds", 0.0)
         return_rms.__dict__.update(checkpoint["return_rms"])
         recent_returns.extend(checkpoint["recent_returns"])
         recent_lengths.extend(checkpoint["recent_lengths"])
@@ -580,7 +625,7 @@ def main(args: Args) -> None:
             "script": SCRIPT, "format": CHECKPOINT_FORMAT, "config": config,
             "settings": {name: getattr(args, name) for name in TUNABLE},
             "iteration": iteration, "global_step": global_step, "elapsed": elapsed_before + time.time() - start_time,
-            "ultho_seconds": ultho_seconds,
+            "ultho_seconds": ultho_seconds, "rollout_seconds": rollout_seconds, "update_seconds": update_seconds,
             "agent": agent.state_dict(), "optimizer": optimizer.state_dict(),
             "bandit": bandit.state_dict() if bandit is not None else None,
             "return_rms": dict(return_rms.__dict__),
@@ -607,6 +652,7 @@ def main(args: Args) -> None:
     start_time, start_step = time.time(), global_step
     for iteration in range(start_iteration, num_iterations + 1):
         # 1. Collect a rollout with the current policy.
+        rollout_start = time.perf_counter()
         iteration_returns: list[float] = []
         iteration_lengths: list[int] = []
         for step in range(args.num_steps):
@@ -650,6 +696,7 @@ def main(args: Args) -> None:
                 game_length[finished] = 0
         recent_returns.extend(iteration_returns)
         recent_lengths.extend(iteration_lengths)
+        rollout_seconds += time.perf_counter() - rollout_start
 
         # 2. Generalized advantage estimation.
         with torch.no_grad():
@@ -687,6 +734,7 @@ def main(args: Args) -> None:
             ultho_seconds += time.perf_counter() - tick
 
         # 4. PPO update with the settings in force.
+        update_start = time.perf_counter()
         b_obs = obs.reshape((-1,) + envs.single_observation_space.shape)
         b_logprobs, b_actions = logprobs.reshape(-1), actions.reshape(-1)
         b_advantages, b_returns, b_values = advantages.reshape(-1), returns.reshape(-1), values.reshape(-1)
@@ -696,41 +744,21 @@ def main(args: Args) -> None:
             permutation = torch.from_numpy(minibatch_rng.permutation(batch_size)).to(device)
             for start in range(0, batch_size, args.minibatch_size):
                 mb = permutation[start:start + args.minibatch_size]
-                new_log_probs, newvalue = agent(b_obs[mb])
-                newlogprob = new_log_probs.gather(1, b_actions[mb].unsqueeze(1)).squeeze(1)
-                entropy = -(new_log_probs.exp() * new_log_probs).sum(-1)
-                logratio = newlogprob - b_logprobs[mb]
-                ratio = logratio.exp()
-                with torch.no_grad():
-                    old_approx_kl = (-logratio).mean()
-                    approx_kl = ((ratio - 1) - logratio).mean()
-                    clipfrac = ((ratio - 1.0).abs() > args.clip_coef).float().mean()
-
                 mb_advantages = b_advantages[mb]
                 if args.norm_adv:
                     mb_advantages = (mb_advantages - mb_advantages.mean()) / (mb_advantages.std() + 1e-8)
-                pg_loss1 = -mb_advantages * ratio
-                pg_loss2 = -mb_advantages * torch.clamp(ratio, 1 - args.clip_coef, 1 + args.clip_coef)
-                pg_loss = torch.max(pg_loss1, pg_loss2).mean()
-
-                if args.clip_vloss:
-                    v_loss_unclipped = (newvalue - b_returns[mb]) ** 2
-                    v_clipped = b_values[mb] + torch.clamp(newvalue - b_values[mb], -args.clip_coef, args.clip_coef)
-                    v_loss = 0.5 * torch.max(v_loss_unclipped, (v_clipped - b_returns[mb]) ** 2).mean()
-                else:
-                    v_loss = 0.5 * ((newvalue - b_returns[mb]) ** 2).mean()
-                entropy_loss = entropy.mean()
-                loss = pg_loss - args.ent_coef * entropy_loss + v_loss * args.vf_coef
-
+                loss, stats = ppo_loss(agent, args, b_obs[mb], b_actions[mb], b_logprobs[mb], mb_advantages,
+                                       b_returns[mb], b_values[mb])
                 optimizer.zero_grad(set_to_none=True)
                 loss.backward()
                 nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
                 optimizer.step()
-                loss_sums += torch.stack([pg_loss, v_loss, entropy_loss, old_approx_kl, approx_kl, clipfrac]).detach()
+                loss_sums += stats
                 num_minibatches += 1
-            if args.target_kl is not None and approx_kl.item() > args.target_kl:
+            if args.target_kl is not None and stats[4].item() > args.target_kl:  # the last minibatch's approx KL
                 break
         pg_mean, v_mean, ent_mean, old_kl_mean, kl_mean, clipfrac_mean = (loss_sums / num_minibatches).tolist()
+        update_seconds += time.perf_counter() - update_start
         if not all(map(math.isfinite, (pg_mean, v_mean, ent_mean))):
             progress.close()
             writer.close()
@@ -808,7 +836,12 @@ def main(args: Args) -> None:
         "sps": global_step / wall_time if wall_time > 0 else None,
         "ultho_seconds": ultho_seconds,
         "ultho_share": ultho_seconds / wall_time if wall_time > 0 else None,
+        "rollout_seconds": rollout_seconds,
+        "update_seconds": update_seconds,
         "device": str(device),
+        "precision": args.precision,
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "peak_cuda_mb": torch.cuda.max_memory_allocated(device) / 2**20 if device.type == "cuda" else None,
         "final_score": final_score,
         "final_score_episodes": len(recent_returns),
         "final_episode_length": float(np.mean(recent_lengths)) if recent_lengths else None,

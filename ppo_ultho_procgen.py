@@ -7,7 +7,9 @@ is plain PPO with fixed settings, the paper's baseline.
 
 Network: CleanRL's IMPALA CNN (three conv sequences of 16, 32, 32 channels with two residual blocks each, a
 256-unit layer, shared by actor and critic) on the 64x64x3 RGB frame. Rollouts store observations as uint8;
-each batch is scaled by 1/255 on the device when the network reads it.
+each batch is scaled by 1/255 on the device when the network reads it. ``--precision bf16`` runs its
+convolutions and linear layers under bfloat16 autocast; its outputs, and all of PPO's arithmetic after them,
+stay float32 (docs/precision.md).
 
 Training uses levels 0-199 (``--num-levels 200 --start-level 0``), easy mode; the final policy (and, with
 ``--eval-every``, the policy during training) is tested on the full level distribution (``num_levels=0``).
@@ -72,6 +74,10 @@ EASY_MODE_RANGE = {
 }
 """(R_min, R_max) per game in easy mode (Cobbe et al. 2020): normalized score = (R - R_min) / (R_max - R_min)."""
 
+CPU_UPDATE_CHUNK = 512
+"""--update-chunk 0 on the CPU: a minibatch of more samples is split into chunks of this many (the IMPALA CNN's
+float32 activations of 512 frames take about 0.8 GB)."""
+
 
 @dataclass
 class Args:
@@ -86,6 +92,10 @@ class Args:
     torch_threads: int = 0
     """CPU threads for torch (0: one per core, torch's own default). On an idle 2-core machine two threads
     make the CNN's update about 1.7x faster than one; set 1 when other jobs share the cores"""
+    precision: Literal["float32", "bf16"] = "float32"
+    """float32 (the paper's) or bf16: the network's convolutions and linear layers under bfloat16 autocast, on
+    the CPU (AVX512-BF16 or AMX) or CUDA; weights, optimizer, log-probabilities, ratio and losses stay float32
+    (docs/precision.md). A resumed run keeps its own"""
     run_name: Optional[str] = None
     """name of the run directory under --runs-dir (default: {env_id}__{exp_name}__{seed}__{unix time})"""
     runs_dir: str = "runs"
@@ -126,15 +136,20 @@ class Args:
     """value loss coefficient"""
     max_grad_norm: float = 0.5
     """maximum norm for gradient clipping"""
-    update_chunk: int = 512
-    """samples per forward/backward pass inside a minibatch; the chunks' gradients are summed before the step,
-    so the update is the minibatch's. Bounds memory: the IMPALA CNN's activations for 2048 frames take about
-    3 GB, for 512 about 0.8 GB (it does not change the paper's minibatch size)"""
+    update_chunk: int = 0
+    """samples per forward/backward pass inside a minibatch; the chunks' gradients, each weighted by its share,
+    are summed before the step, so the update is the minibatch's. 0 (automatic): the whole minibatch at once on
+    CUDA, chunks of at most 512 on the CPU. Bounds memory: the IMPALA CNN's float32 activations for 2048 frames
+    take about 3 GB, for 512 about 0.8 GB (it does not change the paper's minibatch size)"""
     target_kl: Optional[float] = None
     """stop an update's epochs early once the approximate KL exceeds this (off by default)"""
     norm_reward: bool = True
     """scale rewards by the running std of the discounted return and clip them to +-10 (gym's NormalizeReward,
     as CleanRL); logged and scored returns are always the raw game returns"""
+    env_threads: int = 1
+    """worker threads of procgen's vector environment (0: the games step in the training thread). 1 suits a
+    2-core machine, whose other core is torch's; a 16-core GPU host wants more (benchmarks/bench_procgen.py
+    --env-threads N measures it). The games are the same for any number"""
 
     # ULTHO
     ultho: bool = True
@@ -266,14 +281,16 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
                              f"{args.init_from} is already at step {checkpoint['global_step']}")
     if args.env_id not in GAMES:
         raise UsageError(f"--env-id {args.env_id}: not a Procgen game (one of {', '.join(GAMES)})")
-    for name in ("num_envs", "num_steps", "total_timesteps", "update_epochs", "update_chunk", "checkpoint_every"):
+    for name in ("num_envs", "num_steps", "total_timesteps", "update_epochs", "checkpoint_every"):
         if getattr(args, name) <= 0:
             raise UsageError(f"--{name.replace('_', '-')} must be positive, got {getattr(args, name)}")
     if args.torch_threads < 0:
         raise UsageError(f"--torch-threads must be >= 0 (0: one per core), got {args.torch_threads}")
-    for name in ("eval_episodes", "eval_every", "num_levels", "start_level"):
+    for name in ("eval_episodes", "eval_every", "num_levels", "start_level", "env_threads"):
         if getattr(args, name) < 0:
             raise UsageError(f"--{name.replace('_', '-')} must be >= 0, got {getattr(args, name)}")
+    if args.update_chunk < 0:
+        raise UsageError(f"--update-chunk must be >= 0 (0: automatic), got {args.update_chunk}")
     if args.start_level + args.num_levels >= 2**31:
         raise UsageError(f"--start-level {args.start_level} with --num-levels {args.num_levels} exceeds procgen's 31-bit level seeds")
     batch_size = args.num_envs * args.num_steps
@@ -331,11 +348,11 @@ class ProcgenVecEnv:
     checkpoint resumes the environments exactly.
     """
 
-    def __init__(self, env_id: str, num_envs: int, num_levels: int, start_level: int, seed: int):
-        # num_threads=1: on a 2-core machine the second core is torch's; procgen's own pool only contends.
+    def __init__(self, env_id: str, num_envs: int, num_levels: int, start_level: int, seed: int, num_threads: int):
+        # A game's steps do not depend on the thread that runs them: any num_threads gives the same games.
         self.env = procgen.ProcgenGym3Env(num=num_envs, env_name=env_id, num_levels=num_levels,
                                           start_level=start_level, distribution_mode="easy", rand_seed=seed,
-                                          num_threads=1)
+                                          num_threads=num_threads)
         self.num_envs = num_envs
         self.single_observation_shape = self.env.ob_space["rgb"].shape  # (64, 64, 3), uint8
         self.single_action_n = self.env.ac_space.eltype.n
@@ -366,8 +383,8 @@ def make_envs(args: "Args", num_envs: int, test: bool, seed: int) -> ProcgenVecE
     """Training environments draw levels start_level .. start_level + num_levels - 1; test environments draw
     from the full distribution (num_levels=0)."""
     if test:
-        return ProcgenVecEnv(args.env_id, num_envs, num_levels=0, start_level=0, seed=seed)
-    return ProcgenVecEnv(args.env_id, num_envs, args.num_levels, args.start_level, seed)
+        return ProcgenVecEnv(args.env_id, num_envs, num_levels=0, start_level=0, seed=seed, num_threads=args.env_threads)
+    return ProcgenVecEnv(args.env_id, num_envs, args.num_levels, args.start_level, seed, num_threads=args.env_threads)
 
 
 class RewardNormalizer:
@@ -428,8 +445,9 @@ class Agent(nn.Module):
     """CleanRL's IMPALA CNN (Espeholt et al. 2018) with a shared trunk, in channels-last memory format
     (measured on 2 CPU cores: the update is about 15% faster than channels-first)."""
 
-    def __init__(self, obs_shape: tuple[int, int, int], num_actions: int):
+    def __init__(self, obs_shape: tuple[int, int, int], num_actions: int, precision: str):
         super().__init__()
+        self.precision = precision  # not part of the state: a checkpoint loads into either precision
         height, width, channels = obs_shape
         layers: list[nn.Module] = []
         for out_channels in (16, 32, 32):
@@ -446,18 +464,60 @@ class Agent(nn.Module):
         return self.network(obs.permute(0, 3, 1, 2).float().div_(255.0))
 
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """uint8 observations (N, 64, 64, 3) -> (action log-probabilities (N, A), values (N,))."""
-        hidden = self.hidden(obs)
-        return F.log_softmax(self.actor(hidden), dim=-1), self.critic(hidden).squeeze(-1)
+        """uint8 observations (N, 64, 64, 3) -> (action log-probabilities (N, A), values (N,)), both float32."""
+        with torch.autocast(obs.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16"):
+            hidden = self.hidden(obs)
+            logits, value = self.actor(hidden), self.critic(hidden)
+        # Outside autocast and in float32: the log-softmax, and all of PPO's arithmetic on what it returns.
+        return F.log_softmax(logits.float(), dim=-1), value.float().squeeze(-1)
 
     def get_value(self, obs: torch.Tensor) -> torch.Tensor:
-        return self.critic(self.hidden(obs)).squeeze(-1)
+        with torch.autocast(obs.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16"):
+            value = self.critic(self.hidden(obs))
+        return value.float().squeeze(-1)
 
 
 def sample(log_probs: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
     """One action per row. argmax(p / E) with E ~ Exp(1) is an exact categorical sample (the exponential
     race) and costs less than torch.multinomial on small batches."""
     return (log_probs.exp() / torch.empty_like(log_probs).exponential_(generator=generator)).argmax(-1)
+
+
+def update_chunk_size(args: Args, device: torch.device) -> int:
+    """Samples per forward/backward pass of the update: --update-chunk, or for 0 the whole minibatch on CUDA
+    (a GPU holds its activations) and at most CPU_UPDATE_CHUNK on the CPU."""
+    if args.update_chunk > 0:
+        return args.update_chunk
+    return args.minibatch_size if device.type == "cuda" else min(args.minibatch_size, CPU_UPDATE_CHUNK)
+
+
+def ppo_loss(agent: Agent, args: Args, obs: torch.Tensor, actions: torch.Tensor, old_logprobs: torch.Tensor,
+             advantages: torch.Tensor, returns: torch.Tensor, old_values: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """PPO's clipped loss on these samples (advantages as the update uses them) and its statistics: policy loss,
+    value loss, entropy, old approximate KL, approximate KL, clip fraction."""
+    new_log_probs, newvalue = agent(obs)
+    newlogprob = new_log_probs.gather(1, actions.unsqueeze(1)).squeeze(1)
+    entropy = -(new_log_probs.exp() * new_log_probs).sum(-1)
+    logratio = newlogprob - old_logprobs
+    ratio = logratio.exp()
+    with torch.no_grad():
+        old_approx_kl = (-logratio).mean()
+        approx_kl = ((ratio - 1) - logratio).mean()
+        clipfrac = ((ratio - 1.0).abs() > args.clip_coef).float().mean()
+
+    pg_loss1 = -advantages * ratio
+    pg_loss2 = -advantages * torch.clamp(ratio, 1 - args.clip_coef, 1 + args.clip_coef)
+    pg_loss = torch.max(pg_loss1, pg_loss2).mean()
+
+    if args.clip_vloss:
+        v_loss_unclipped = (newvalue - returns) ** 2
+        v_clipped = old_values + torch.clamp(newvalue - old_values, -args.clip_coef, args.clip_coef)
+        v_loss = 0.5 * torch.max(v_loss_unclipped, (v_clipped - returns) ** 2).mean()
+    else:
+        v_loss = 0.5 * ((newvalue - returns) ** 2).mean()
+    entropy_loss = entropy.mean()
+    loss = pg_loss - args.ent_coef * entropy_loss + v_loss * args.vf_coef
+    return loss, torch.stack([pg_loss, v_loss, entropy_loss, old_approx_kl, approx_kl, clipfrac]).detach()
 
 
 def atomic_write_bytes(path: str, data: bytes) -> None:
@@ -546,12 +606,13 @@ def main(args: Args) -> None:
     else:
         envs.set_state(checkpoint["envs"])
         next_obs_np, next_done_np = checkpoint["next_obs"], checkpoint["next_done"]
-    agent = Agent(envs.single_observation_shape, envs.single_action_n).to(device)
+    agent = Agent(envs.single_observation_shape, envs.single_action_n, args.precision).to(device)
     optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5, fused=True)
 
     start_iteration, global_step, elapsed_before = 1, 0, 0.0
     eval_seconds = 0.0  # wall time of --eval-every tests, left out of the training time and SPS
     ultho_seconds = 0.0  # wall time spent on ULTHO's own work, reported as its share of the run
+    rollout_seconds, update_seconds = 0.0, 0.0  # wall time of acting and stepping, and of the PPO update
     episode_return = np.zeros(args.num_envs)
     episode_length = np.zeros(args.num_envs, dtype=np.int64)
     recent_returns: deque[float] = deque(maxlen=100)
@@ -572,6 +633,8 @@ def main(args: Args) -> None:
         start_iteration = checkpoint["iteration"] + 1
         global_step = checkpoint["global_step"]
         elapsed_before, ultho_seconds = checkpoint["elapsed"], checkpoint["ultho_seconds"]
+        # Checkpoints from before these were recorded count from here.
+        rollout_seconds, update_seconds = checkpoint.get("rollout_seconds", 0.0), checkpoint.get("update_seconds", 0.0)
         episode_return, episode_length = checkpoint["episode_return"], checkpoint["episode_length"]
         recent_returns.extend(checkpoint["recent_returns"])
         recent_lengths.extend(checkpoint["recent_lengths"])
@@ -600,7 +663,7 @@ def main(args: Args) -> None:
             "script": SCRIPT, "format": CHECKPOINT_FORMAT, "config": config,
             "settings": {name: getattr(args, name) for name in TUNABLE},
             "iteration": iteration, "global_step": global_step, "elapsed": elapsed_before + time.time() - start_time - eval_seconds,
-            "ultho_seconds": ultho_seconds,
+            "ultho_seconds": ultho_seconds, "rollout_seconds": rollout_seconds, "update_seconds": update_seconds,
             "agent": agent.state_dict(), "optimizer": optimizer.state_dict(),
             "bandit": bandit.state_dict() if bandit is not None else None,
             "reward_normalizer": reward_normalizer.state_dict() if reward_normalizer is not None else None,
@@ -626,6 +689,7 @@ def main(args: Args) -> None:
     start_time, start_step = time.time(), global_step
     for iteration in range(start_iteration, num_iterations + 1):
         # 1. Collect a rollout with the current policy.
+        rollout_start = time.perf_counter()
         iteration_returns: list[float] = []
         iteration_lengths: list[int] = []
         for step in range(args.num_steps):
@@ -652,6 +716,7 @@ def main(args: Args) -> None:
                 episode_length[finished] = 0
         recent_returns.extend(iteration_returns)
         recent_lengths.extend(iteration_lengths)
+        rollout_seconds += time.perf_counter() - rollout_start
 
         # 2. Generalized advantage estimation.
         with torch.no_grad():
@@ -689,6 +754,7 @@ def main(args: Args) -> None:
             ultho_seconds += time.perf_counter() - tick
 
         # 4. PPO update with the settings in force.
+        update_start = time.perf_counter()
         b_obs = obs.reshape((-1,) + envs.single_observation_shape)
         b_logprobs, b_actions = logprobs.reshape(-1), actions.reshape(-1)
         b_advantages, b_returns, b_values = advantages.reshape(-1), returns.reshape(-1), values.reshape(-1)
@@ -701,39 +767,19 @@ def main(args: Args) -> None:
                 mb_advantages = b_advantages[mb]
                 if args.norm_adv:
                     mb_advantages = (mb_advantages - mb_advantages.mean()) / (mb_advantages.std() + 1e-8)
-                # The minibatch's gradient, summed over chunks of --update-chunk samples (each weighted by its
-                # share of the minibatch), so the IMPALA CNN's activations never exist for all 2048 at once.
+                # The minibatch's gradient, summed over chunks of update_chunk samples (each weighted by its share
+                # of the minibatch), so on the CPU the IMPALA CNN's activations never exist for all 2048 at once.
+                update_chunk = update_chunk_size(args, device)
                 optimizer.zero_grad(set_to_none=True)
                 mb_sums = torch.zeros(6, device=device)
-                for chunk_start in range(0, len(mb), args.update_chunk):
-                    chunk = mb[chunk_start:chunk_start + args.update_chunk]
-                    chunk_advantages = mb_advantages[chunk_start:chunk_start + args.update_chunk]
+                for chunk_start in range(0, len(mb), update_chunk):
+                    chunk = mb[chunk_start:chunk_start + update_chunk]
                     weight = len(chunk) / len(mb)
-                    new_log_probs, newvalue = agent(b_obs[chunk])
-                    newlogprob = new_log_probs.gather(1, b_actions[chunk].unsqueeze(1)).squeeze(1)
-                    entropy = -(new_log_probs.exp() * new_log_probs).sum(-1)
-                    logratio = newlogprob - b_logprobs[chunk]
-                    ratio = logratio.exp()
-                    with torch.no_grad():
-                        old_approx_kl = (-logratio).mean()
-                        approx_kl = ((ratio - 1) - logratio).mean()
-                        clipfrac = ((ratio - 1.0).abs() > args.clip_coef).float().mean()
-
-                    pg_loss1 = -chunk_advantages * ratio
-                    pg_loss2 = -chunk_advantages * torch.clamp(ratio, 1 - args.clip_coef, 1 + args.clip_coef)
-                    pg_loss = torch.max(pg_loss1, pg_loss2).mean()
-
-                    if args.clip_vloss:
-                        v_loss_unclipped = (newvalue - b_returns[chunk]) ** 2
-                        v_clipped = b_values[chunk] + torch.clamp(newvalue - b_values[chunk], -args.clip_coef, args.clip_coef)
-                        v_loss = 0.5 * torch.max(v_loss_unclipped, (v_clipped - b_returns[chunk]) ** 2).mean()
-                    else:
-                        v_loss = 0.5 * ((newvalue - b_returns[chunk]) ** 2).mean()
-                    entropy_loss = entropy.mean()
-                    loss = pg_loss - args.ent_coef * entropy_loss + v_loss * args.vf_coef
-
+                    loss, stats = ppo_loss(agent, args, b_obs[chunk], b_actions[chunk], b_logprobs[chunk],
+                                           mb_advantages[chunk_start:chunk_start + update_chunk], b_returns[chunk],
+                                           b_values[chunk])
                     (loss * weight).backward()
-                    mb_sums += weight * torch.stack([pg_loss, v_loss, entropy_loss, old_approx_kl, approx_kl, clipfrac]).detach()
+                    mb_sums += weight * stats
                 nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
                 optimizer.step()
                 loss_sums += mb_sums
@@ -741,6 +787,7 @@ def main(args: Args) -> None:
             if args.target_kl is not None and mb_sums[4].item() > args.target_kl:
                 break
         pg_mean, v_mean, ent_mean, old_kl_mean, kl_mean, clipfrac_mean = (loss_sums / num_minibatches).tolist()
+        update_seconds += time.perf_counter() - update_start
         if not all(map(math.isfinite, (pg_mean, v_mean, ent_mean))):
             progress.close()
             writer.close()
@@ -828,7 +875,10 @@ def main(args: Args) -> None:
         "sps": global_step / wall_time if wall_time > 0 else None,
         "ultho_seconds": ultho_seconds,
         "ultho_share": ultho_seconds / wall_time if wall_time > 0 else None,
+        "rollout_seconds": rollout_seconds,
+        "update_seconds": update_seconds,
         "device": str(device),
+        "precision": args.precision,
         "final_score": train_score,
         "final_score_episodes": len(recent_returns),
         "final_episode_length": float(np.mean(recent_lengths)) if recent_lengths else None,
@@ -844,6 +894,7 @@ def main(args: Args) -> None:
         "normalized_train_score": normalized_score(args.env_id, train_score),
         "normalized_test_score": normalized_score(args.env_id, test_score),
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "peak_cuda_mb": torch.cuda.max_memory_allocated(device) / 2**20 if device.type == "cuda" else None,
         "settings_in_force": {name: getattr(args, name) for name in tuned},
         "bandit": None if bandit is None else {
             "search_space": bandit.search_space,

@@ -1,11 +1,14 @@
 """Throughput and peak memory of ppo_ultho_procgen.py at the paper's settings (64 envs x 256 steps, minibatch
 2048, 3 epochs), ULTHO on and off side by side, ULTHO's own cost, and the environment's own ceiling (64
-starpilot games in procgen's vector env, random actions).
+starpilot games in procgen's vector env, random actions). Then float32 and bf16 (--precision) side by side, as
+plain PPO (--no-ultho) so that both do the same work: SPS, their ratio, peak memory, and the shares of the wall
+time in the rollout and in the update (each run's summary.json).
 
 One iteration is 16,384 steps, so a run of a few iterations per configuration is enough. Peak resident memory
-is the training process's own (summary.json's peak_rss_mb, getrusage's ru_maxrss).
+is the training process's own (summary.json's peak_rss_mb, getrusage's ru_maxrss); on a GPU, peak_cuda_mb is
+the CUDA allocator's peak. --update-chunk is the script's automatic one (512 on the CPU, none on CUDA).
 
-Usage: python benchmarks/bench_procgen.py [--steps 32768] [--repeats 2] [--cuda]
+Usage: python benchmarks/bench_procgen.py [--steps 32768] [--repeats 2] [--cuda] [--env-threads 1]
 """
 
 import argparse
@@ -22,14 +25,14 @@ with contextlib.redirect_stderr(io.StringIO()):
     import procgen
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from common import machine, run_script  # noqa: E402
+from common import machine, precision_side_by_side, print_precision_table, run_script  # noqa: E402
 
 SCRIPT = "ppo_ultho_procgen.py"
 
 
-def env_only_steps_per_second(env_id: str, num_envs: int, steps: int) -> float:
+def env_only_steps_per_second(env_id: str, num_envs: int, steps: int, threads: int) -> float:
     envs = procgen.ProcgenGym3Env(num=num_envs, env_name=env_id, num_levels=200, start_level=0,
-                                  distribution_mode="easy", rand_seed=0, num_threads=1)
+                                  distribution_mode="easy", rand_seed=0, num_threads=threads)
     actions = np.random.default_rng(0).integers(0, 15, (steps // num_envs, num_envs), dtype=np.int32)
     start = time.perf_counter()
     for a in actions:
@@ -42,11 +45,16 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--env-id", default="starpilot")
     parser.add_argument("--steps", type=int, default=32_768, help="training steps per run (2 iterations; paper: 25M)")
-    parser.add_argument("--repeats", type=int, default=2, help="rounds of the three alternating configurations")
+    parser.add_argument("--repeats", type=int, default=2,
+                        help="rounds of alternating runs (the three ULTHO configurations, then the two precisions)")
     parser.add_argument("--cuda", action=argparse.BooleanOptionalAction, default=False,
                         help="train on the GPU when there is one (default: CPU)")
+    parser.add_argument("--env-threads", type=int, default=1,
+                        help="procgen's worker threads, for the training runs and the environment alone (the "
+                             "script's default 1 suits 2 cores; a 16-core GPU host wants more)")
     args = parser.parse_args()
-    base = ["--env-id", args.env_id, "--total-timesteps", str(args.steps), "--cuda" if args.cuda else "--no-cuda"]
+    base = ["--env-id", args.env_id, "--total-timesteps", str(args.steps), "--cuda" if args.cuda else "--no-cuda",
+            "--env-threads", str(args.env_threads)]
     neutral = ["learning_rate=0.0005", "minibatch_size=2048", "vf_coef=0.5", "update_epochs=3"]
     configurations = {"PPO (--no-ultho)": ["--no-ultho"], "ULTHO, neutral space": ["--ultho-clusters", *neutral],
                       "ULTHO, paper space": ["--ultho"]}
@@ -63,7 +71,7 @@ def main() -> None:
             device = summary["device"]
             if summary["ultho_share"] is not None and name != "PPO (--no-ultho)":
                 shares.append(summary["ultho_share"])
-    env_alone = [env_only_steps_per_second(args.env_id, 64, 16_384) for _ in range(args.repeats)]
+    env_alone = [env_only_steps_per_second(args.env_id, 64, 16_384, args.env_threads) for _ in range(args.repeats)]
 
     ref = statistics.median(sps["PPO (--no-ultho)"])
     print(f"# {SCRIPT} on {args.env_id}, 64 envs x 256 steps, {args.steps} steps per run, training on {device}  ({machine()})")
@@ -79,6 +87,9 @@ def main() -> None:
           f"(medians of {args.repeats} alternating runs)")
     print(f"ULTHO's cost, measured inside each ULTHO run (select, credit, apply, bandit logging as a share of "
           f"wall time): median {100 * statistics.median(shares):.3f}%, max {100 * max(shares):.3f}%")
+    print()
+    runs = precision_side_by_side(SCRIPT, [*base, "--no-ultho"], args.repeats)
+    print_precision_table(f"{SCRIPT} --no-ultho on {args.env_id}, 64 envs x 256 steps, float32 vs bf16", runs)
 
 
 if __name__ == "__main__":

@@ -1,4 +1,5 @@
-"""What the script tests share: running a script as a user would, and reading back what it wrote."""
+"""What the script tests share: running a script as a user would, reading back what it wrote, and feeding a
+script's own network and loss a real rollout."""
 
 import json
 import os
@@ -7,6 +8,8 @@ import subprocess
 import sys
 import time
 
+import numpy as np
+import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -91,3 +94,58 @@ def assert_existing_run_and_foreign_checkpoint_refused(script: str, tmp_path) ->
     assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1
     assert "unreadable" in result.stderr
     assert sorted(os.listdir(tmp_path)) == ["junk", "taken"] and os.listdir(tmp_path / "taken") == []
+
+
+def real_rollout(script, agent, envs, obs: np.ndarray, args) -> dict[str, torch.Tensor]:
+    """--num-steps steps of the agent's policy (float32) on real environments, stored as the training loop stores
+    them, with GAE returns and advantages (normalized, as the update uses them): one update's inputs, all of
+    them one minibatch. Rewards are sign-clipped, on the scale of the scripts' normalized rewards."""
+    stored: dict[str, list] = {"obs": [], "actions": [], "logprobs": [], "values": []}
+    rewards, dones = np.zeros((args.num_steps, args.num_envs)), np.zeros((args.num_steps, args.num_envs))
+    done = np.zeros(args.num_envs, dtype=bool)
+    for step in range(args.num_steps):
+        obs_t = torch.from_numpy(obs)
+        with torch.no_grad():
+            log_probs, value = agent(obs_t)
+        action = script.sample(log_probs)
+        for key, x in zip(stored, (obs_t, action, log_probs.gather(1, action.unsqueeze(1)).squeeze(1), value)):
+            stored[key].append(x)
+        dones[step] = done
+        obs, reward, terminated, truncated, _ = envs.step(action.numpy())
+        done = terminated | truncated
+        rewards[step] = np.sign(reward)
+    with torch.no_grad():
+        next_value = agent.get_value(torch.from_numpy(obs)).numpy()
+    values = torch.stack(stored["values"]).numpy()
+    advantages, last = np.zeros_like(rewards), 0.0
+    for t in reversed(range(args.num_steps)):
+        nonterminal, next_values = (1 - done, next_value) if t == args.num_steps - 1 else (1 - dones[t + 1], values[t + 1])
+        delta = rewards[t] + args.gamma * next_values * nonterminal - values[t]
+        advantages[t] = last = delta + args.gamma * args.gae_lambda * nonterminal * last
+    batch = {key: torch.cat(x) for key, x in stored.items()}
+    batch["returns"] = torch.from_numpy(advantages + values).float().reshape(-1)
+    advantages = torch.from_numpy(advantages).float().reshape(-1)
+    batch["advantages"] = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+    return batch
+
+
+def bf16_against_float32(script, agent, args, batch: dict[str, torch.Tensor]) -> dict[str, float]:
+    """The PPO loss's gradient on `batch` (the script's own ppo_loss) and the probability ratio, under bf16 and
+    under float32 with the same weights: the gradients' cosine similarity and relative norm difference, and the
+    largest |ratio_bf16 - ratio_float32| over the batch."""
+    gradients, ratios = {}, {}
+    for precision in ("float32", "bf16"):
+        agent.precision = precision
+        agent.zero_grad(set_to_none=True)
+        loss, _ = script.ppo_loss(agent, args, batch["obs"], batch["actions"], batch["logprobs"], batch["advantages"],
+                                  batch["returns"], batch["values"])
+        loss.backward()
+        assert all(p.grad.dtype == torch.float32 for p in agent.parameters())
+        gradients[precision] = torch.cat([p.grad.flatten() for p in agent.parameters()])
+        with torch.no_grad():
+            log_probs, _ = agent(batch["obs"])
+        ratios[precision] = (log_probs.gather(1, batch["actions"].unsqueeze(1)).squeeze(1) - batch["logprobs"]).exp()
+    g32, g16 = gradients["float32"], gradients["bf16"]
+    return {"cosine": torch.nn.functional.cosine_similarity(g32, g16, dim=0).item(),
+            "relative_norm_difference": ((g16 - g32).norm() / g32.norm()).item(),
+            "ratio_deviation": (ratios["bf16"] - ratios["float32"]).abs().max().item()}

@@ -2,13 +2,16 @@
 
 import math
 import os
+import shutil
+from concurrent.futures import ThreadPoolExecutor
 
+import numpy as np
 import pytest
 import torch
 
 from helpers import (
-    assert_existing_run_and_foreign_checkpoint_refused, assert_refused, kill_after_first_checkpoint, run,
-    run_bad_inputs, run_ok, scalars, summary,
+    assert_existing_run_and_foreign_checkpoint_refused, assert_refused, bf16_against_float32,
+    kill_after_first_checkpoint, real_rollout, run, run_bad_inputs, run_concurrently, run_ok, scalars, summary,
 )
 from ultho_bandit import ULTHO
 
@@ -54,10 +57,14 @@ def test_smoke_run_writes_every_tensorboard_tag(smoke_run):
 def test_smoke_run_summary_has_train_and_test_scores(smoke_run):
     s = summary(smoke_run)
     assert s["script"] == "ppo_ultho_procgen" and s["env_id"] == "starpilot"
+    assert s["precision"] == s["settings"]["precision"] == "float32"
     assert s["global_step"] == 384 and s["iterations"] == 3 and s["ultho"] is True
     assert s["settings"]["num_levels"] == 200 and s["settings"]["start_level"] == 0
     assert s["settings"]["gamma"] == 0.999 and s["settings"]["norm_reward"] is True
     assert s["wall_time_s"] > 0 and s["sps"] > 0 and s["peak_rss_mb"] > 0
+    assert s["rollout_seconds"] > 0 and s["update_seconds"] > 0
+    assert s["rollout_seconds"] + s["update_seconds"] < s["wall_time_s"]
+    assert (s["peak_cuda_mb"] is None) == (s["device"] == "cpu")
     assert s["train_score"] == s["final_score"]
     assert s["eval"]["episodes"] == 3 and len(s["eval"]["returns"]) == 3
     assert s["test_score"] == pytest.approx(sum(s["eval"]["returns"]) / 3)
@@ -114,6 +121,63 @@ def test_killed_and_resumed_run_equals_uninterrupted_run(tmp_path):
     assert len(a["ultho/selected_cluster"]) == 6
 
 
+def test_bf16_run_killed_and_resumed_continues_in_bf16_and_equals_uninterrupted_run(tmp_path):
+    # The resume command leaves --precision out: bf16 must come back from the checkpoint, and bf16's kernels on
+    # the CPU must be as repeatable as float32's. A float32 run started from the same checkpoint (--init-from
+    # takes only state, float32 in either precision) logs other losses, so a resumed run that fell back to
+    # float32 could not match. Plain PPO, so that the two continuations differ only in precision.
+    args = ["--num-envs", "4", "--num-steps", "32", "--minibatch-size", "64", "--update-chunk", "48",
+            "--total-timesteps", "512", "--no-ultho", "--checkpoint-every", "2", "--eval-episodes", "1", "--quiet",
+            "--runs-dir", str(tmp_path)]
+    with ThreadPoolExecutor(1) as pool:
+        whole = pool.submit(run, SCRIPT, *args, "--precision", "bf16", "--run-name", "whole")
+        kill_after_first_checkpoint(SCRIPT, str(tmp_path / "killed"), *args, "--precision", "bf16", "--run-name", "killed")
+        assert whole.result().returncode == 0, whole.result().stderr
+    checkpoint = torch.load(tmp_path / "killed" / "checkpoint.pt", weights_only=False)
+    assert checkpoint["iteration"] < 4 and checkpoint["config"]["precision"] == "bf16"
+    # The weights and Adam's moments stay float32 (autocast casts per operation).
+    assert all(t.dtype == torch.float32 for t in checkpoint["agent"].values())
+    assert all(t.dtype == torch.float32 for state in checkpoint["optimizer"]["state"].values()
+               for name, t in state.items() if name != "step")
+    shutil.copytree(tmp_path / "killed", tmp_path / "at_kill")  # the resumed run replaces its checkpoint
+    for result in run_concurrently(SCRIPT, [["--resume", str(tmp_path / "killed"), "--quiet"],
+                                            [*args, "--init-from", str(tmp_path / "at_kill"), "--run-name", "float32"]]):
+        assert result.returncode == 0, result.stderr
+
+    whole, resumed = summary(str(tmp_path / "whole")), summary(str(tmp_path / "killed"))
+    assert whole["precision"] == resumed["precision"] == "bf16"
+    for key in ("global_step", "train_score", "eval"):
+        assert whole[key] == resumed[key], key
+    a, b = scalars(str(tmp_path / "whole")), scalars(str(tmp_path / "killed"))
+    for tag in ("losses/value_loss", "losses/policy_loss", "losses/entropy", "losses/approx_kl", "charts/episodic_return"):
+        assert a[tag] == b[tag], tag
+    float32 = scalars(str(tmp_path / "float32"))
+    assert summary(str(tmp_path / "float32"))["precision"] == "float32"
+    after_kill = [(step, loss) for step, loss in a["losses/value_loss"] if step > checkpoint["global_step"]]
+    assert [step for step, _ in float32["losses/value_loss"]] == [step for step, _ in after_kill]
+    assert float32["losses/value_loss"] != after_kill
+
+
+@pytest.mark.parametrize("seed", [1])
+def test_bf16_gradient_agrees_with_float32_on_a_real_rollout(seed):
+    # A minibatch of 512 starpilot frames (8 envs x 64 steps) played by the freshly initialized network, the PPO
+    # loss computed by the script's own ppo_loss under both precisions with the same weights. Measured on seeds
+    # 1-6 (docs/precision.md): cosine 0.9999-1.0000, relative norm difference 0.005-0.012, ratio deviation
+    # 6e-6 to 9e-6; the bounds are the ALE test's, which a log-softmax left in bf16 fails.
+    import ppo_ultho_procgen as script
+
+    torch.manual_seed(seed)
+    args = script.parse_args(["--num-envs", "8", "--num-steps", "64", "--seed", str(seed)])
+    envs = script.make_envs(args, args.num_envs, test=False, seed=seed)
+    agent = script.Agent(envs.single_observation_shape, envs.single_action_n, "float32")
+    batch = real_rollout(script, agent, envs, envs.observation(), args)
+    envs.close()
+    agreement = bf16_against_float32(script, agent, args, batch)
+    assert agreement["cosine"] > 0.99, agreement
+    assert 0 < agreement["relative_norm_difference"] < 0.15, agreement  # > 0: bf16 was in effect
+    assert 0 < agreement["ratio_deviation"] < 1e-3, agreement
+
+
 def test_non_finite_loss_stops_and_keeps_last_good_checkpoint(tmp_path):
     # Iteration 1 takes lr=1e-3 (every bound is 0); with c=100 iteration 2 explores the untried 1e38.
     result = run(SCRIPT, "--num-envs", "4", "--num-steps", "32", "--minibatch-size", "64", "--total-timesteps", "384",
@@ -138,7 +202,8 @@ BAD_INPUTS = [
     (["--start-level", "-5"], "--start-level must be >= 0, got -5"),
     (["--eval-every", "-1"], "--eval-every must be >= 0, got -1"),
     (["--eval-episodes", "-1"], "--eval-episodes must be >= 0, got -1"),
-    (["--update-chunk", "0"], "--update-chunk must be positive, got 0"),
+    (["--update-chunk", "-1"], "--update-chunk must be >= 0 (0: automatic), got -1"),
+    (["--env-threads", "-1"], "--env-threads must be >= 0, got -1"),
     (["--minibatch-size", "3000"], "3000 does not divide"),
     (["--ultho-clusters", "momentum"], "momentum"),
     (["--ultho-clusters", "minibatch_size=1000,2048"], "1000 does not divide"),
@@ -154,6 +219,7 @@ BAD_INPUTS = [
     (["--init-from", "/no/such/run"], "--init-from /no/such/run: no checkpoint.pt there"),
     (["--resume", "/no/such/run", "--init-from", "/no/such/run"], "--resume and --init-from exclude each other"),
     (["--run-name", "a/b"], "'a/b'"),
+    (["--precision", "fp16"], "fp16"),
 ]
 
 
@@ -175,8 +241,8 @@ def test_help_lists_every_flag():
     result = run(SCRIPT, "--help")
     assert result.returncode == 0
     for flag in ("--env-id", "--num-levels", "--start-level", "--total-timesteps", "--minibatch-size",
-                 "--update-chunk", "--norm-reward", "--ultho-clusters", "--no-ultho", "--ultho-utility", "--resume",
-                 "--checkpoint-every", "--eval-episodes", "--eval-every", "--quiet"):
+                 "--update-chunk", "--env-threads", "--norm-reward", "--ultho-clusters", "--no-ultho", "--ultho-utility", "--resume",
+                 "--checkpoint-every", "--eval-episodes", "--eval-every", "--quiet", "--precision"):
         assert flag in result.stdout
 
 
@@ -205,3 +271,36 @@ def test_other_procgen_games_train_by_name(tmp_path, game):
            "--eval-episodes", "1", "--quiet", "--runs-dir", str(tmp_path), "--run-name", game)
     s = summary(str(tmp_path / game))
     assert s["env_id"] == game and s["global_step"] == 32 and s["eval"]["episodes"] == 1
+
+
+def test_update_chunk_zero_is_the_whole_minibatch_on_cuda_and_at_most_512_on_the_cpu():
+    import ppo_ultho_procgen as script
+
+    cpu, cuda = torch.device("cpu"), torch.device("cuda")
+    assert script.Args().update_chunk == 0
+    for minibatch_size, on_the_cpu in ((2048, 512), (1024, 512), (512, 512), (256, 256)):
+        automatic = script.Args(minibatch_size=minibatch_size)
+        assert script.update_chunk_size(automatic, cpu) == on_the_cpu
+        assert script.update_chunk_size(automatic, cuda) == minibatch_size
+    explicit = script.Args(minibatch_size=2048, update_chunk=48)
+    assert script.update_chunk_size(explicit, cpu) == script.update_chunk_size(explicit, cuda) == 48
+
+
+def test_env_threads_reach_procgen_and_do_not_change_the_games():
+    import ppo_ultho_procgen as script
+
+    actions = np.random.default_rng(0).integers(0, 15, (100, 4))
+    games = []
+    for threads in (0, 1, 3):
+        before = len(os.listdir("/proc/self/task"))
+        envs = script.make_envs(script.Args(env_threads=threads), 4, test=False, seed=7)
+        assert len(os.listdir("/proc/self/task")) - before == threads  # 0: stepped in the caller's thread
+        played = [envs.observation()]
+        for a in actions:
+            obs, reward, terminated, _, _ = envs.step(a)
+            played += [obs.copy(), reward.copy(), terminated.copy()]
+        assert any(x.any() for x in played[3::3]), "no game ended: the comparison would miss resets"
+        games.append(played)
+        del envs
+    for other in games[1:]:
+        assert all(np.array_equal(x, y) for x, y in zip(games[0], other))
