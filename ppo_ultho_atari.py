@@ -17,7 +17,7 @@ observation divided by 255, in channels-last memory order (measured faster on th
 runs its convolutions and linear layers under bfloat16 autocast; its outputs, and all of PPO's arithmetic after
 them, stay float32 (docs/precision.md).
 
-Defaults are the paper's ALE settings (Appendix B, Tables 2-3; ``ULTHO_SPEC.md``).
+Defaults are the paper's ALE settings (Appendix B, Tables 2-3; ``docs/paper.md``).
 
     python ppo_ultho_atari.py --env-id BattleZone --seed 1
     tensorboard --logdir runs
@@ -72,7 +72,7 @@ HUMAN_NORMALIZATION = {
     "Phoenix": (761.4, 7242.6),
     "Qbert": (163.9, 13455.0),
 }
-"""(random, human) scores of the ALE-5 games (ULTHO_SPEC.md): human-normalized = (R - random) / (human - random)."""
+"""(random, human) scores of the ALE-5 games (docs/paper.md): human-normalized = (R - random) / (human - random)."""
 
 REWARD_CLIP = 10.0
 """Normalized rewards are clipped to [-10, 10], as in CleanRL's normalized-reward PPO scripts."""

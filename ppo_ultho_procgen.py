@@ -13,7 +13,7 @@ stay float32 (docs/precision.md).
 
 Training uses levels 0-199 (``--num-levels 200 --start-level 0``), easy mode; the final policy (and, with
 ``--eval-every``, the policy during training) is tested on the full level distribution (``num_levels=0``).
-Defaults are the paper's Procgen settings (Appendix B, Tables 2-3; ``ULTHO_SPEC.md``).
+Defaults are the paper's Procgen settings (Appendix B, Tables 2-3; ``docs/paper.md``).
 
     python ppo_ultho_procgen.py --env-id starpilot --seed 1
     tensorboard --logdir runs
