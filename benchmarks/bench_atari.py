@@ -41,15 +41,20 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="rounds of alternating runs (the three ULTHO configurations, then the two precisions)")
     parser.add_argument("--script-args", nargs=argparse.REMAINDER, default=[],
                         help="further arguments for every training run (e.g. --torch-threads 2)")
+    parser.add_argument("--sections", nargs="+", choices=("ultho", "precision"), default=["ultho", "precision"],
+                        help="which tables: ULTHO on and off, float32 against bf16 (default both)")
     args = parser.parse_args()
     neutral = ["minibatch_size=256", "vf_coef=0.5", "ent_coef=0.01"]
     base = ["--env-id", args.env_id, "--total-timesteps", str(args.steps), *args.script_args]
-    rows, shares = ultho_on_off("ppo_ultho_atari.py", base, neutral, args.repeats)
-    rows["env alone (ceiling)"] = [env_only_steps_per_second(args.rom, 8, 20_480) for _ in range(args.repeats)]
-    print_table(f"ppo_ultho_atari.py on {args.env_id}, 8 envs x 128 steps", rows, shares)
-    print()
-    runs = precision_side_by_side("ppo_ultho_atari.py", [*base, "--no-ultho"], args.repeats)
-    print_precision_table(f"ppo_ultho_atari.py --no-ultho on {args.env_id}, 8 envs x 128 steps, float32 vs bf16", runs)
+    if "ultho" in args.sections:
+        rows, shares = ultho_on_off("ppo_ultho_atari.py", base, neutral, args.repeats)
+        rows["env alone (ceiling)"] = [env_only_steps_per_second(args.rom, 8, 20_480) for _ in range(args.repeats)]
+        print_table(f"ppo_ultho_atari.py on {args.env_id}, 8 envs x 128 steps", rows, shares)
+        print()
+
+    if "precision" in args.sections:
+        runs = precision_side_by_side("ppo_ultho_atari.py", [*base, "--no-ultho"], args.repeats)
+        print_precision_table(f"ppo_ultho_atari.py --no-ultho on {args.env_id}, 8 envs x 128 steps, float32 vs bf16", runs)
 
 
 if __name__ == "__main__":

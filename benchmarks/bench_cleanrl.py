@@ -1,8 +1,8 @@
 """This project's scripts against CleanRL's, side by side: whole-process wall time and peak memory.
 
 Each benchmark trains the same number of steps at the paper's settings with CleanRL's script and with ours
-(ULTHO on, and --no-ultho), alternating the three in every round so that drifting machine load hits all alike.
-A run is timed from process start to exit (imports, environment construction and start-up included) and its
+(ULTHO on, and --no-ultho; for ALE and Procgen each also with --precision bf16), alternating all of them in
+every round so that drifting machine load hits all alike. A run is timed from process start to exit (imports, environment construction and start-up included) and its
 peak resident memory is read from the kernel's accounting of that process (``os.wait4``). The table gives
 medians over the rounds and ratios: CleanRL's wall time over ours (above 1: ours is faster) and our peak
 memory over CleanRL's.
@@ -55,6 +55,7 @@ class Benchmark:
     cleanrl: str
     cleanrl_args: tuple[str, ...]
     steps: int
+    precisions: tuple[str, ...] = ("float32",)  # ours also runs in each other one (--precision), side by side
 
 
 # The paper's settings on both sides: CleanRL takes minibatches by count (rollout / minibatch size), anneals the
@@ -77,12 +78,12 @@ BENCHMARKS = {
         "ppo_atari.py", ("--env-id", "BattleZoneNoFrameskip-v4", "--num-envs", "8", "--num-steps", "128",
                          "--num-minibatches", "4", "--update-epochs", "4", "--learning-rate", "2.5e-4",
                          "--no-anneal-lr", "--clip-coef", "0.2"),
-        10_240),
+        10_240, ("float32", "bf16")),
     "procgen": Benchmark(
         "ppo_ultho_procgen.py", ("--env-id", "starpilot", "--num-levels", "0"),
         "ppo_procgen.py", ("--env-id", "starpilot", "--num-envs", "64", "--num-steps", "256", "--num-minibatches", "8",
                            "--update-epochs", "3", "--learning-rate", "5e-4", "--no-anneal-lr"),
-        16_384),
+        16_384, ("float32", "bf16")),
 }
 
 
@@ -106,7 +107,7 @@ def main() -> None:
     parser.add_argument("--benchmarks", nargs="+", choices=sorted(BENCHMARKS), default=list(BENCHMARKS))
     parser.add_argument("--rounds", type=int, default=3, help="alternating rounds (default 3)")
     parser.add_argument("--extra", nargs="*", default=[], metavar="FLAG",
-                        help="flags added to our runs only, e.g. --extra --precision bf16")
+                        help="flags added to our runs only, e.g. --extra --torch-threads 1")
     args = parser.parse_args()
     for benchmark in args.benchmarks:
         path = os.path.join(args.cleanrl_dir, BENCHMARKS[benchmark].cleanrl)
@@ -115,33 +116,36 @@ def main() -> None:
 
     print(f"# CleanRL vs this project, whole-process wall time ({platform.machine()}, {os.cpu_count()} cores, "
           f"Python {platform.python_version()}, {args.rounds} alternating rounds, medians)")
-    print("| benchmark | steps | CleanRL s | ours, ULTHO s | ours, PPO s | CleanRL / ours, ULTHO | CleanRL / ours, PPO "
-          "| peak MB CleanRL | peak MB ours, ULTHO | memory ours / CleanRL |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("| benchmark | steps | ours | CleanRL s | ours s | CleanRL / ours | peak MB CleanRL | peak MB ours "
+          "| memory ours / CleanRL |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for name in args.benchmarks:
         bench = BENCHMARKS[name]
         steps = str(bench.steps)
         with tempfile.TemporaryDirectory() as scratch:
-            configs = {
-                "cleanrl": ([args.cleanrl_python, os.path.join(os.path.abspath(args.cleanrl_dir), bench.cleanrl),
-                             *bench.cleanrl_args, "--total-timesteps", steps, "--seed", "1"], scratch),
-                "ultho": ([sys.executable, os.path.join(REPO, bench.ours), *bench.ours_args, "--total-timesteps", steps,
-                           "--eval-episodes", "0", "--quiet", "--runs-dir", scratch, *args.extra], REPO),
-                "ppo": ([sys.executable, os.path.join(REPO, bench.ours), *bench.ours_args, "--total-timesteps", steps,
-                         "--eval-episodes", "0", "--quiet", "--runs-dir", scratch, "--no-ultho", *args.extra], REPO),
-            }
+            configs = {"CleanRL": ([args.cleanrl_python, os.path.join(os.path.abspath(args.cleanrl_dir), bench.cleanrl),
+                                    *bench.cleanrl_args, "--total-timesteps", steps, "--seed", "1"], scratch)}
+            for precision in bench.precisions:
+                for method, flags in (("ULTHO", []), ("PPO", ["--no-ultho"])):
+                    label = method if precision == "float32" else f"{method}, {precision}"
+                    extra = ["--precision", precision] if precision != "float32" else []
+                    configs[label] = ([sys.executable, os.path.join(REPO, bench.ours), *bench.ours_args,
+                                       "--total-timesteps", steps, "--eval-episodes", "0", "--quiet", "--runs-dir",
+                                       scratch, *flags, *extra, *args.extra], REPO)
             results: dict[str, list[tuple[float, float]]] = {key: [] for key in configs}
             for round_ in range(args.rounds):
                 for key, (command, cwd) in configs.items():
-                    if key != "cleanrl":
-                        command = [*command, "--run-name", f"{key}{round_}"]
+                    if key != "CleanRL":
+                        command = [*command, "--run-name", f"{key.lower().replace(', ', '_')}{round_}"]
                     results[key].append(timed(command, cwd))
         wall = {key: statistics.median(w for w, _ in runs) for key, runs in results.items()}
         peak = {key: max(m for _, m in runs) for key, runs in results.items()}
-        print(f"| {name} | {bench.steps:,} | {wall['cleanrl']:.1f} | {wall['ultho']:.1f} | {wall['ppo']:.1f} | "
-              f"{wall['cleanrl'] / wall['ultho']:.2f}x | {wall['cleanrl'] / wall['ppo']:.2f}x | {peak['cleanrl']:,.0f} | "
-              f"{peak['ultho']:,.0f} | {peak['ultho'] / peak['cleanrl']:.2f} |", flush=True)
-
+        for key in configs:
+            if key == "CleanRL":
+                continue
+            print(f"| {name} | {bench.steps:,} | {key} | {wall['CleanRL']:.1f} | {wall[key]:.1f} | "
+                  f"{wall['CleanRL'] / wall[key]:.2f}x | {peak['CleanRL']:,.0f} | {peak[key]:,.0f} | "
+                  f"{peak[key] / peak['CleanRL']:.2f} |", flush=True)
 
 if __name__ == "__main__":
     main()

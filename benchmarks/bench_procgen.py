@@ -41,20 +41,8 @@ def env_only_steps_per_second(env_id: str, num_envs: int, steps: int, threads: i
     return len(actions) * num_envs / (time.perf_counter() - start)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--env-id", default="starpilot")
-    parser.add_argument("--steps", type=int, default=32_768, help="training steps per run (2 iterations; paper: 25M)")
-    parser.add_argument("--repeats", type=int, default=2,
-                        help="rounds of alternating runs (the three ULTHO configurations, then the two precisions)")
-    parser.add_argument("--cuda", action=argparse.BooleanOptionalAction, default=False,
-                        help="train on the GPU when there is one (default: CPU)")
-    parser.add_argument("--env-threads", type=int, default=1,
-                        help="procgen's worker threads, for the training runs and the environment alone (the "
-                             "script's default 1 suits 2 cores; a 16-core GPU host wants more)")
-    args = parser.parse_args()
-    base = ["--env-id", args.env_id, "--total-timesteps", str(args.steps), "--cuda" if args.cuda else "--no-cuda",
-            "--env-threads", str(args.env_threads)]
+def ultho_on_off_table(args: argparse.Namespace, base: list[str]) -> None:
+    """PPO, ULTHO over a neutral space and ULTHO over the paper's, alternating; the environment alone."""
     neutral = ["learning_rate=0.0005", "minibatch_size=2048", "vf_coef=0.5", "update_epochs=3"]
     configurations = {"PPO (--no-ultho)": ["--no-ultho"], "ULTHO, neutral space": ["--ultho-clusters", *neutral],
                       "ULTHO, paper space": ["--ultho"]}
@@ -87,9 +75,30 @@ def main() -> None:
           f"(medians of {args.repeats} alternating runs)")
     print(f"ULTHO's cost, measured inside each ULTHO run (select, credit, apply, bandit logging as a share of "
           f"wall time): median {100 * statistics.median(shares):.3f}%, max {100 * max(shares):.3f}%")
-    print()
-    runs = precision_side_by_side(SCRIPT, [*base, "--no-ultho"], args.repeats)
-    print_precision_table(f"{SCRIPT} --no-ultho on {args.env_id}, 64 envs x 256 steps, float32 vs bf16", runs)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--env-id", default="starpilot")
+    parser.add_argument("--steps", type=int, default=32_768, help="training steps per run (2 iterations; paper: 25M)")
+    parser.add_argument("--repeats", type=int, default=2,
+                        help="rounds of alternating runs (the three ULTHO configurations, then the two precisions)")
+    parser.add_argument("--cuda", action=argparse.BooleanOptionalAction, default=False,
+                        help="train on the GPU when there is one (default: CPU)")
+    parser.add_argument("--env-threads", type=int, default=1,
+                        help="procgen's worker threads, for the training runs and the environment alone (the "
+                             "script's default 1 suits 2 cores; a 16-core GPU host wants more)")
+    parser.add_argument("--sections", nargs="+", choices=("ultho", "precision"), default=["ultho", "precision"],
+                        help="which tables: ULTHO on and off, float32 against bf16 (default both)")
+    args = parser.parse_args()
+    base = ["--env-id", args.env_id, "--total-timesteps", str(args.steps), "--cuda" if args.cuda else "--no-cuda",
+            "--env-threads", str(args.env_threads)]
+    if "ultho" in args.sections:
+        ultho_on_off_table(args, base)
+        print()
+    if "precision" in args.sections:
+        runs = precision_side_by_side(SCRIPT, [*base, "--no-ultho"], args.repeats)
+        print_precision_table(f"{SCRIPT} --no-ultho on {args.env_id}, 64 envs x 256 steps, float32 vs bf16", runs)
 
 
 if __name__ == "__main__":
