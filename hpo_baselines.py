@@ -432,7 +432,9 @@ def study(args: argparse.Namespace, script_args: list[str], log=print) -> dict:
 
     warnings.filterwarnings("ignore", message="Consider boosting PBT performance")  # our trial is a process
     with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
-        ray.init(address=args.ray_address, num_cpus=None if args.ray_address else args.num_cpus,
+        # "local": a Ray instance of the study's own, never one that `ray start` left running on this machine
+        # (which ray.init() without an address would join, with another token and other CPUs).
+        ray.init(address=args.ray_address or "local", num_cpus=None if args.ray_address else args.num_cpus,
                  include_dashboard=False, log_to_driver=False, logging_level="ERROR")
     logging.getLogger("ray").setLevel(logging.ERROR)
     try:

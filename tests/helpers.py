@@ -15,10 +15,10 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def run(script: str, *args: str, timeout: float = 600) -> subprocess.CompletedProcess:
-    """`python <script> <args>` from the repository root, output captured."""
+def run(script: str, *args: str, timeout: float = 600, env: dict | None = None) -> subprocess.CompletedProcess:
+    """`python <script> <args>` from the repository root, output captured; ``env`` adds environment variables."""
     return subprocess.run([sys.executable, os.path.join(REPO, script), *args], capture_output=True, text=True,
-                          timeout=timeout, cwd=REPO)
+                          timeout=timeout, cwd=REPO, env=None if env is None else {**os.environ, **env})
 
 
 def run_concurrently(script: str, arg_lists: list[list[str]], timeout: float = 600) -> list[subprocess.CompletedProcess]:

@@ -19,7 +19,7 @@ STUDY_FIELDS = {"format", "tool", "status", "method", "script", "script_args", "
                 "trials", "errors"}
 
 
-def study(study_dir, *tool_args: str, total: int = 4 * STEP) -> subprocess.CompletedProcess:
+def study(study_dir, *tool_args: str, total: int = 4 * STEP, env: dict | None = None) -> subprocess.CompletedProcess:
     """A study of two-iteration segments on the local Ray instance the tool starts (2 CPUs, a trial each)."""
     return run(TOOL, SCRIPT, *tool_args, "--interval", str(2 * STEP), "--study-dir", str(study_dir), "--num-cpus", "2",
-               "--", *SCRIPT_ARGS, "--total-timesteps", str(total))
+               "--", *SCRIPT_ARGS, "--total-timesteps", str(total), env=env)

@@ -144,7 +144,9 @@ def test_pb2_and_random_search_run_to_completion(tmp_path):
     assert_scores_recorded(record)
     assert_trials_followed_their_records(tmp_path / "pb2", record)
 
-    rs = study(tmp_path / "random", "--method", "random", "--samples", "2")
+    # Without --ray-address the study runs on a Ray instance of its own, even where RAY_ADDRESS names a cluster
+    # (here one that is not there), which ray.init() with no address would join.
+    rs = study(tmp_path / "random", "--method", "random", "--samples", "2", env={"RAY_ADDRESS": "127.0.0.1:1"})
     assert rs.returncode == 0, rs.stdout + rs.stderr
     record = read(tmp_path / "random" / "study.json")
     assert set(record) == STUDY_FIELDS
