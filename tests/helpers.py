@@ -3,10 +3,12 @@ script's own network and loss a real rollout."""
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import torch
@@ -149,3 +151,37 @@ def bf16_against_float32(script, agent, args, batch: dict[str, torch.Tensor]) ->
     return {"cosine": torch.nn.functional.cosine_similarity(g32, g16, dim=0).item(),
             "relative_norm_difference": ((g16 - g32).norm() / g32.norm()).item(),
             "ratio_deviation": (ratios["bf16"] - ratios["float32"]).abs().max().item()}
+
+
+def assert_bf16_resume_equals_uninterrupted(script: str, tmp_path, args: list[str], score_key: str) -> None:
+    """A bf16 run killed after its first checkpoint and resumed without --precision equals the same bf16 run
+    uninterrupted; its checkpoint holds float32 weights and Adam moments; a float32 run started from that
+    checkpoint (--init-from takes only state) logs other losses, so a resume that fell back to float32 could not
+    have matched. `args` is a plain-PPO command line with --checkpoint-every 2 and a --runs-dir."""
+    with ThreadPoolExecutor(1) as pool:
+        whole = pool.submit(run, script, *args, "--precision", "bf16", "--run-name", "whole")
+        kill_after_first_checkpoint(script, str(tmp_path / "killed"), *args, "--precision", "bf16", "--run-name", "killed")
+        assert whole.result().returncode == 0, whole.result().stderr
+    checkpoint = torch.load(tmp_path / "killed" / "checkpoint.pt", weights_only=False)
+    assert checkpoint["iteration"] < 4 and checkpoint["config"]["precision"] == "bf16"
+    # The weights and Adam's moments stay float32 (autocast casts per operation).
+    assert all(t.dtype == torch.float32 for t in checkpoint["agent"].values())
+    assert all(t.dtype == torch.float32 for state in checkpoint["optimizer"]["state"].values()
+               for name, t in state.items() if name != "step")
+    shutil.copytree(tmp_path / "killed", tmp_path / "at_kill")  # the resumed run replaces its checkpoint
+    for result in run_concurrently(script, [["--resume", str(tmp_path / "killed"), "--quiet"],
+                                            [*args, "--init-from", str(tmp_path / "at_kill"), "--run-name", "float32"]]):
+        assert result.returncode == 0, result.stderr
+
+    whole, resumed = summary(str(tmp_path / "whole")), summary(str(tmp_path / "killed"))
+    assert whole["precision"] == resumed["precision"] == "bf16"
+    for key in ("global_step", score_key, "eval"):
+        assert whole[key] == resumed[key], key
+    a, b = scalars(str(tmp_path / "whole")), scalars(str(tmp_path / "killed"))
+    for tag in ("losses/value_loss", "losses/policy_loss", "losses/entropy", "losses/approx_kl", "charts/episodic_return"):
+        assert a[tag] == b[tag], tag
+    float32 = scalars(str(tmp_path / "float32"))
+    assert summary(str(tmp_path / "float32"))["precision"] == "float32"
+    after_kill = [(step, loss) for step, loss in a["losses/value_loss"] if step > checkpoint["global_step"]]
+    assert [step for step, _ in float32["losses/value_loss"]] == [step for step, _ in after_kill]
+    assert float32["losses/value_loss"] != after_kill
