@@ -11,7 +11,7 @@ return curve (mean over seeds, one thin line per seed). ``--csv`` writes every r
 (precision, seed, step, return), from which the figure can be redrawn without the runs (``--from-csv``).
 
 Usage:
-    python benchmarks/learning_precision.py                      # ALE Breakout, 300K steps, seeds 1-3
+    python benchmarks/learning_precision.py                      # ALE Breakout, 300K steps, seeds 1-5
     python benchmarks/learning_precision.py --script ppo_ultho_procgen.py --env-id coinrun --total-timesteps 2000000
     python benchmarks/learning_precision.py --no-run --figure parity.png --csv parity.csv   # report finished runs
 
@@ -162,7 +162,7 @@ def main() -> None:
     parser.add_argument("--script", default="ppo_ultho_atari.py", choices=["ppo_ultho_atari.py",
                                                                            "ppo_ultho_procgen.py"])
     parser.add_argument("--env-id", default="Breakout")
-    parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5])
     parser.add_argument("--total-timesteps", type=int, default=300_000)
     parser.add_argument("--out", default="runs/parity",
                         help="prefix of the two sweep directories, <out>-float32 and <out>-bf16 (default runs/parity)")
@@ -172,7 +172,7 @@ def main() -> None:
     parser.add_argument("--from-csv", help="draw --figure from such a CSV instead of the runs (no table)")
     args = parser.parse_args()
     if args.total_timesteps <= 0 or any(seed < 0 for seed in args.seeds):
-        parser.error(f"--total-timesteps and --seeds must be positive (got {args.total_timesteps}, {args.seeds})")
+        parser.error(f"--total-timesteps must be positive and --seeds non-negative (got {args.total_timesteps}, {args.seeds})")
     title = f"{args.env_id}, PPO --no-ultho, float32 and bf16"
     if args.from_csv:
         if not args.figure:
