@@ -397,7 +397,8 @@ class ReplayableEnvs:
 
     def state_dict(self) -> dict:
         return {"seed_key": self.seed_key, "episodes": list(self.episodes),
-                "actions": [np.array(a, dtype=np.float32).reshape(len(a), -1) for a in self.actions]}
+                "actions": [np.array(a, dtype=np.float32).reshape(len(a), *self.single_action_space.shape)
+                            for a in self.actions]}
 
     @classmethod
     def from_state_dict(cls, env_id: str, state: dict) -> "ReplayableEnvs":

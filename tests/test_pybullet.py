@@ -154,6 +154,31 @@ def test_killed_and_resumed_run_equals_uninterrupted_run(tmp_path):
         assert torch.equal(tensor, final_resumed["agent"][name]), name
 
 
+def test_checkpoint_right_after_an_episode_ended_on_a_rollouts_last_step_resumes_exactly(tmp_path):
+    # HalfCheetah's episodes run exactly 1000 steps: with 250-step rollouts the checkpoint at iteration 4 is
+    # written just after an episode ended on the rollout's last step, so the episode in progress has no actions
+    # yet (the 2M-step paper runs reach that point at iteration 125).
+    args = ["--env-id", "HalfCheetahBulletEnv-v0", "--num-steps", "250", "--total-timesteps", "2000",
+            "--update-epochs", "1", "--minibatch-size", "50", "--ultho-clusters", "learning_rate",
+            "--checkpoint-every", "4", "--eval-episodes", "1", "--quiet", "--runs-dir", str(tmp_path)]
+    run_ok(SCRIPT, *args, "--run-name", "whole")
+    kill_after_first_checkpoint(SCRIPT, str(tmp_path / "killed"), *args, "--run-name", "killed")
+    checkpoint = torch.load(tmp_path / "killed" / "checkpoint.pt", weights_only=False)
+    assert checkpoint["iteration"] == 4 and checkpoint["global_step"] == 1000
+    assert checkpoint["envs"]["episodes"] == [2]  # the warm-up excluded: episode 1 ended, episode 2 just began
+    assert checkpoint["envs"]["actions"][0].shape == (0, 6)
+    run_ok(SCRIPT, "--resume", str(tmp_path / "killed"), "--quiet")
+
+    whole, resumed = summary(str(tmp_path / "whole")), summary(str(tmp_path / "killed"))
+    for key in ("global_step", "iterations", "bandit", "settings_in_force", "final_score", "eval"):
+        assert whole[key] == resumed[key], key
+    final_whole = torch.load(tmp_path / "whole" / "checkpoint.pt", weights_only=False)
+    final_resumed = torch.load(tmp_path / "killed" / "checkpoint.pt", weights_only=False)
+    assert final_whole["envs"]["actions"][0].shape == (0, 6)  # the final checkpoint too ends an episode
+    for name, tensor in final_whole["agent"].items():
+        assert torch.equal(tensor, final_resumed["agent"][name]), name
+
+
 def test_init_from_carries_the_normalizer_over_and_puts_the_new_settings_in_force(tmp_path):
     """A run continued with --init-from keeps its observation and return statistics: with the same settings and
     seed it equals the uninterrupted run bit for bit; with new ones, the new settings are in force."""
