@@ -500,7 +500,8 @@ class IntervalStats:
         ``batch_size``, the mean number of rows the updates sampled."""
         out = {}
         if self.updates:
-            out.update(zip(self.CRITIC, (self.critic_sum / self.updates).tolist()), batch_size=self.sampled_rows / self.updates)
+            out.update(zip(self.CRITIC, (self.critic_sum / self.updates).tolist()))
+            out["batch_size"] = self.sampled_rows / self.updates
         if self.actor_updates:
             out.update(zip(self.ACTOR, (self.actor_sum / self.actor_updates).tolist()))
         return out
@@ -942,7 +943,8 @@ def atomic_save_json(path: str, obj: dict) -> None:
 
 def write_summary(run_dir: str, args: Args, config: dict, bandit: Optional[ULTHO], tuned: list[str],
                   global_step: int, num_iterations: int, wall_time: float, ultho_seconds: float,
-                  device: torch.device, recent_returns: deque, recent_lengths: deque, eval_returns: list[float]) -> None:
+                  device: torch.device, recent_returns: deque, recent_lengths: deque,
+                  eval_returns: list[float]) -> None:
     """summary.json, with the PPO scripts' keys (docs/scripts.md)."""
     summary = {
         "script": SCRIPT,

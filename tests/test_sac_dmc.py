@@ -163,7 +163,8 @@ def test_no_ultho_keeps_settings_fixed_and_logs_no_bandit_tags(tmp_path):
     s = summary(str(tmp_path / "sac"))
     assert s["bandit"] is None and s["env_id"] == "walker-walk" and s["global_step"] == 400
     assert s["settings_in_force"] == {"q_lr": 0.002, "policy_lr": 3e-4, "batch_size": 32, "tau": 0.005}
-    assert torch.load(tmp_path / "sac" / "checkpoint.pt", weights_only=False)["replay"]["rows"].shape == (400, 2 * 24 + 6 + 2)
+    rows = torch.load(tmp_path / "sac" / "checkpoint.pt", weights_only=False)["replay"]["rows"]
+    assert rows.shape == (400, 2 * 24 + 6 + 2)  # walker-walk: 24 observations, 6 actions
 
 
 def test_killed_and_resumed_run_equals_uninterrupted_run(tmp_path):
@@ -197,6 +198,7 @@ def test_killed_and_resumed_run_equals_uninterrupted_run(tmp_path):
     for state_whole, state_resumed in zip(final_whole["sac"]["q_optimizer"]["state"].values(),
                                           final_resumed["sac"]["q_optimizer"]["state"].values()):
         assert all(torch.equal(state_whole[k], state_resumed[k]) for k in state_whole)
+    # The second episode's 500 actions so far, the same in both.
     assert [len(a) for a in final_whole["envs"]["actions"]] == [len(a) for a in final_resumed["envs"]["actions"]] == [500]
     assert all(np.array_equal(x, y) for x, y in zip(final_whole["envs"]["actions"], final_resumed["envs"]["actions"]))
 
@@ -214,7 +216,8 @@ def test_init_from_carries_the_replay_buffer_and_puts_new_settings_in_force(tmp_
             [*args, "--total-timesteps", "600", "--init-from", str(tmp_path / "first"), "--run-name", "new",
              "--q-lr", "0.003", "--batch-size", "64", "--seed", "5"]]):
         assert result.returncode == 0, result.stderr
-    whole, same, new = (torch.load(tmp_path / name / "checkpoint.pt", weights_only=False) for name in ("whole", "same", "new"))
+    whole, same, new = (torch.load(tmp_path / name / "checkpoint.pt", weights_only=False)
+                        for name in ("whole", "same", "new"))
     assert torch.equal(whole["replay"]["rows"], same["replay"]["rows"])
     assert all(torch.equal(whole["sac"]["actor"][k], same["sac"]["actor"][k]) for k in whole["sac"]["actor"])
     assert summary(str(tmp_path / "whole"))["eval"] == summary(str(tmp_path / "same"))["eval"]
@@ -313,3 +316,33 @@ def test_pbt_study_runs_on_sac_and_its_exploit_copies_the_replay_buffer(tmp_path
     assert final["sac"]["q_optimizer"]["param_groups"][0]["lr"] == exploit["new_settings"]["q_lr"]
     series = scalars(str(trial_dir))
     assert [v for step, v in series["charts/batch_size"] if step > 1000] == [exploit["new_settings"]["batch_size"]] * 2
+
+
+def test_sweep_has_a_dmc_preset(tmp_path):
+    result = run("sweep.py", "--paper", "dmc", "--dry-run", "--out", str(tmp_path / "s"))
+    assert result.returncode == 0, result.stderr
+    commands = result.stdout.strip().splitlines()
+    assert len(commands) == 2 * 5 * 13  # 2 tasks x 5 seeds x (SAC, ULTHO at 6 (c, W), a relay at each)
+    assert all("sac_ultho_dmc.py" in c and "--total-timesteps 500000" in c for c in commands)
+    assert sum("--env-id cheetah-run " in c for c in commands) == sum("--env-id walker-walk " in c for c in commands)
+    assert sum("--no-ultho" in c for c in commands) == 10
+    assert f"{len(commands)} runs, {2 * 5 * 19 * 500_000:,} environment steps" in result.stderr
+    assert "at 110 steps/s" in result.stderr and not (tmp_path / "s").exists()
+
+
+def test_report_scores_dmc_returns_divided_by_1000(smoke_run, tmp_path):
+    import csv
+
+    from ultho_report import normalized
+
+    assert normalized("dmc", "walker-walk", 640.0) == pytest.approx(0.64)
+    assert normalized("dmc", "cartpole-balance_sparse", 1000.0) == pytest.approx(1.0)
+    # gymnasium ids the script also runs have no DMC scale (HalfCheetah-v5 is not cheetah-run).
+    assert normalized("dmc", "HalfCheetah-v5", 640.0) is None and normalized("dmc", "Pendulum-v1", -150.0) is None
+    result = run("ultho_report.py", smoke_run, "--out", str(tmp_path / "out"), "--reps", "100", "--no-per-run")
+    assert result.returncode == 0, result.stderr
+    with open(tmp_path / "out" / "aggregate.csv") as f:
+        [row] = list(csv.DictReader(f))
+    assert (row["benchmark"], row["environments"]) == ("dmc", "cheetah-run") and row["method"].startswith("ULTHO")
+    assert float(row["mean"]) == pytest.approx(summary(smoke_run)["final_score"] / 1000)
+    assert "## DMC" in (tmp_path / "out" / "report.md").read_text()
