@@ -540,9 +540,10 @@ def main(args: Args) -> None:
     sac = SAC.create(obs_size, action_size, action_low, action_high, args, device)
 
     # The replay buffer: one preallocated tensor on the device, a row per transition:
-    # [obs, action, reward, terminated, next obs]. One gather by an index tensor samples a batch.
+    # [obs, action, reward, terminated, next obs]. One gather by an index tensor samples a batch. Empty, not
+    # zeroed: rows past `filled` are never read, and the pages of unwritten rows cost no memory until written.
     row_size = 2 * obs_size + action_size + 2
-    storage = torch.zeros((args.buffer_size, row_size), dtype=torch.float32, device=device)
+    storage = torch.empty((args.buffer_size, row_size), dtype=torch.float32, device=device)
     position, filled = 0, 0  # the next row to write; rows holding transitions
 
     start_iteration, global_step, elapsed_before = 1, 0, 0.0
