@@ -300,8 +300,8 @@ class Actor(nn.Module):
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(mean, log std) of the Gaussian before the tanh, each (N, A). F.linear on the parameters: nn.Module's
         per-call dispatch would cost more than the one-row forward of every environment step."""
-        x = F.relu(F.linear(obs, self.fc1.weight, self.fc1.bias))
-        x = F.relu(F.linear(x, self.fc2.weight, self.fc2.bias))
+        x = F.relu(F.linear(obs, self.fc1.weight, self.fc1.bias), inplace=True)
+        x = F.relu(F.linear(x, self.fc2.weight, self.fc2.bias), inplace=True)
         mean, log_std = F.linear(x, self.head.weight, self.head.bias).chunk(2, dim=-1)
         # LOG_STD_MIN + (LOG_STD_MAX - LOG_STD_MIN) * (tanh + 1) / 2, in two ops
         return mean, torch.tanh(log_std).mul(0.5 * (LOG_STD_MAX - LOG_STD_MIN)).add(0.5 * (LOG_STD_MAX + LOG_STD_MIN))
@@ -340,8 +340,8 @@ class SoftQNetwork(nn.Module):
         if detached:
             params = [p.detach() for p in params]
         w1, b1, w2, b2, w3, b3 = params
-        x = F.relu(F.linear(obs_action, w1, b1))
-        x = F.relu(F.linear(x, w2, b2))
+        x = F.relu(F.linear(obs_action, w1, b1), inplace=True)
+        x = F.relu(F.linear(x, w2, b2), inplace=True)
         return F.linear(x, w3, b3).squeeze(-1)
 
 
@@ -355,8 +355,8 @@ class TwinQ(nn.Module):
         self.q1 = SoftQNetwork(input_size)
         self.q2 = SoftQNetwork(input_size)
 
-    def forward(self, obs_action: torch.Tensor, detached: bool = False) -> torch.Tensor:
-        return torch.stack([self.q1(obs_action, detached), self.q2(obs_action, detached)])
+    def forward(self, obs_action: torch.Tensor, detached: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.q1(obs_action, detached), self.q2(obs_action, detached)
 
 
 @dataclass
@@ -439,20 +439,20 @@ def sac_update(sac: SAC, batch: torch.Tensor, update: int, args: Args, obs_size:
 
     with torch.no_grad():
         next_action, next_log_prob = sac.actor.sample(next_obs)
-        next_q = sac.critic_target(torch.cat([next_obs, next_action], dim=1)).min(dim=0).values
+        next_q = torch.minimum(*sac.critic_target(torch.cat([next_obs, next_action], dim=1)))
         target = reward + (1 - terminated) * args.gamma * (next_q - sac.alpha * next_log_prob)
-    q = sac.critic(obs_action)
-    qf_losses = (q - target).square().mean(dim=1)  # CleanRL's qf1_loss and qf2_loss (F.mse_loss)
+    q1, q2 = sac.critic(obs_action)
+    qf1_loss, qf2_loss = F.mse_loss(q1, target), F.mse_loss(q2, target)
     sac.q_optimizer.zero_grad(set_to_none=True)
-    qf_losses.sum().backward()
+    (qf1_loss + qf2_loss).backward()
     sac.q_optimizer.step()
-    critic_stats = torch.cat([qf_losses, q.mean(dim=1), torch.minimum(q[0], q[1]).mean().unsqueeze(0)]).detach()
+    critic_stats = torch.stack([qf1_loss, qf2_loss, q1.mean(), q2.mean(), torch.minimum(q1, q2).mean()]).detach()
 
     actor_stats = None
     if update % args.policy_frequency == 0:  # TD3's delayed update, compensated by policy_frequency steps
         for _ in range(args.policy_frequency):
             action, log_prob = sac.actor.sample(obs)
-            q_pi = sac.critic(torch.cat([obs, action], dim=1), detached=True).min(dim=0).values
+            q_pi = torch.minimum(*sac.critic(torch.cat([obs, action], dim=1), detached=True))
             actor_loss = (sac.alpha * log_prob - q_pi).mean()
             sac.actor_optimizer.zero_grad(set_to_none=True)
             actor_loss.backward()
@@ -601,7 +601,7 @@ def main(args: Args) -> None:
                 if filled:
                     with torch.no_grad():
                         rows = storage[torch.randint(filled, (args.batch_size,), device=device)]
-                        last_utility = sac.critic(rows[:, :obs_size + action_size]).min(dim=0).values.mean().item()
+                        last_utility = torch.minimum(*sac.critic(rows[:, :obs_size + action_size])).mean().item()
             cluster, choice = bandit.select(before=last_utility)
             setattr(args, cluster, choice)
             sac.apply_learning_rates(args)
