@@ -619,6 +619,8 @@ def main(args: Args) -> None:
             else:
                 with torch.no_grad():
                     actions = sac.actor.sample(torch.from_numpy(next_obs).to(device))[0].cpu().numpy()
+                if not np.isfinite(actions).all():  # diverged networks: stop before the physics is given NaN
+                    stop_non_finite("action", iteration, global_step, args, tuned, checkpoint_path, progress, writer)
             obs = next_obs
             next_obs, final_obs, rewards, terminated, truncated = envs.step(actions)
             rows = np.concatenate([obs, actions, rewards[:, None], terminated[:, None], final_obs], axis=1)
@@ -646,12 +648,7 @@ def main(args: Args) -> None:
         # 3. The interval's statistics, and ULTHO's credit: the mean over its batches of each batch's mean min-Q.
         stats = interval.means()
         if not all(map(math.isfinite, stats.values())):
-            progress.close()
-            writer.close()
-            last = f"the last good checkpoint is {checkpoint_path}" if os.path.exists(checkpoint_path) else "no checkpoint was written"
-            print(f"{SCRIPT}: error: non-finite loss at iteration {iteration} (step {global_step}) with "
-                  f"{', '.join(f'{n}={format_value(getattr(args, n))}' for n in tuned)}; stopped, {last}", file=sys.stderr)
-            sys.exit(1)
+            stop_non_finite("loss", iteration, global_step, args, tuned, checkpoint_path, progress, writer)
         if selected is not None:
             tick = time.perf_counter()
             credit = stats["min_qf_values"]
@@ -920,6 +917,17 @@ def restore_rng(state: dict, device: torch.device, action_rng: np.random.Generat
     if device.type == "cuda" and state["cuda"] is not None:
         torch.cuda.set_rng_state_all(state["cuda"])  # actions and batches are drawn on the device
     action_rng.bit_generator.state = state["actions"]
+
+
+def stop_non_finite(what: str, iteration: int, global_step: int, args: Args, tuned: list[str], checkpoint_path: str,
+                    progress: tqdm, writer: SummaryWriter) -> None:
+    """Exit status 1 with the iteration and the settings in force; the last checkpoint stays as it was."""
+    progress.close()
+    writer.close()
+    last = f"the last good checkpoint is {checkpoint_path}" if os.path.exists(checkpoint_path) else "no checkpoint was written"
+    print(f"{SCRIPT}: error: non-finite {what} at iteration {iteration} (step {global_step}) with "
+          f"{', '.join(f'{n}={format_value(getattr(args, n))}' for n in tuned)}; stopped, {last}", file=sys.stderr)
+    sys.exit(1)
 
 
 def save_checkpoint(path: str, checkpoint: dict) -> None:

@@ -207,7 +207,7 @@ def test_init_from_carries_the_replay_buffer_and_puts_new_settings_in_force(tmp_
     """A run continued with --init-from with the same settings and seed equals the uninterrupted run bit for
     bit (replay buffer included); with new settings and another seed, those settings are in force."""
     args = ["--env-id", "cheetah-run", "--ultho-interval", "100", "--learning-starts", "100", "--batch-size", "32",
-            "--no-ultho", "--eval-episodes", "1", "--quiet", "--runs-dir", str(tmp_path)]
+            "--no-ultho", "--eval-episodes", "0", "--quiet", "--runs-dir", str(tmp_path)]
     for result in run_concurrently(SCRIPT, [[*args, "--total-timesteps", "600", "--run-name", "whole"],
                                             [*args, "--total-timesteps", "300", "--run-name", "first"]]):
         assert result.returncode == 0, result.stderr
@@ -219,8 +219,8 @@ def test_init_from_carries_the_replay_buffer_and_puts_new_settings_in_force(tmp_
     whole, same, new = (torch.load(tmp_path / name / "checkpoint.pt", weights_only=False)
                         for name in ("whole", "same", "new"))
     assert torch.equal(whole["replay"]["rows"], same["replay"]["rows"])
-    assert all(torch.equal(whole["sac"]["actor"][k], same["sac"]["actor"][k]) for k in whole["sac"]["actor"])
-    assert summary(str(tmp_path / "whole"))["eval"] == summary(str(tmp_path / "same"))["eval"]
+    for part in ("actor", "critic", "critic_target"):
+        assert all(torch.equal(whole["sac"][part][k], same["sac"][part][k]) for k in whole["sac"][part]), part
     # The new run went on from the source's 300 transitions, with its own draws after them.
     assert torch.equal(new["replay"]["rows"][:300], whole["replay"]["rows"][:300])
     assert not torch.equal(new["replay"]["rows"][300:], whole["replay"]["rows"][300:])
@@ -228,6 +228,22 @@ def test_init_from_carries_the_replay_buffer_and_puts_new_settings_in_force(tmp_
     series = scalars(str(tmp_path / "new"))
     assert series["charts/q_lr"] == [(step, pytest.approx(3e-3)) for step in (400, 500, 600)]
     assert [v for _, v in series["charts/batch_size"]] == [64.0, 64.0, 64.0]
+
+
+def test_non_finite_loss_stops_and_keeps_the_last_good_checkpoint(tmp_path):
+    # Iteration 2 (the first with updates) takes q_lr=0.001; with c=100 iteration 3 explores the untried 1e38.
+    result = run(SCRIPT, "--env-id", "cartpole-balance", "--total-timesteps", "400", "--ultho-interval", "100",
+                 "--learning-starts", "100", "--batch-size", "16", "--ultho-clusters", "q_lr=0.001,1e38",
+                 "--ultho-c", "100", "--checkpoint-every", "1", "--runs-dir", str(tmp_path), "--run-name", "nan")
+    assert result.returncode == 1, result.stderr
+    # The diverged critics make the policy's next action NaN, which MuJoCo would refuse: the run stops first.
+    [line] = result.stderr.strip().splitlines()
+    assert line.startswith("sac_ultho_dmc: error: non-finite ") and " at iteration 3 " in line, line
+    assert "q_lr=1e+38" in line and "the last good checkpoint is" in line
+    checkpoint = torch.load(tmp_path / "nan" / "checkpoint.pt", weights_only=False)
+    assert checkpoint["iteration"] == 2 and checkpoint["settings"]["q_lr"] == 0.001
+    assert all(torch.isfinite(p).all() for p in checkpoint["sac"]["critic"].values())
+    assert not (tmp_path / "nan" / "summary.json").exists()
 
 
 BAD_INPUTS = [
@@ -277,7 +293,7 @@ def test_relay_ultho_runs_on_sac(tmp_path):
     1000-step episodes end once in each run's 1000 steps, so every run has a final score)."""
     result = run("relay_ultho.py", SCRIPT, "--relay-dir", str(tmp_path / "relay"), "--quiet", "--",
                  "--env-id", "cartpole-balance", "--total-timesteps", "1000", "--ultho-interval", "200",
-                 "--learning-starts", "200", "--ultho-clusters", "q_lr", "batch_size=16,32", "--batch-size", "16",
+                 "--learning-starts", "400", "--ultho-clusters", "q_lr", "batch_size=16,32", "--batch-size", "16",
                  "--eval-episodes", "0")
     assert result.returncode == 0, result.stdout + result.stderr
     record = read_json(tmp_path / "relay" / "relay.json")
@@ -298,7 +314,7 @@ def test_pbt_study_runs_on_sac_and_its_exploit_copies_the_replay_buffer(tmp_path
     result = run("hpo_baselines.py", SCRIPT, "--method", "pbt", "--population", "2", "--quantile", "0.5",
                  "--interval", "1000", "--keep-checkpoints", "0", "--num-cpus", "2", "--study-dir", str(study_dir),
                  "--", "--env-id", "cartpole-balance", "--total-timesteps", "2000", "--ultho-interval", "500",
-                 "--learning-starts", "500", "--ultho-clusters", "q_lr", "batch_size=16,32", "--batch-size", "16",
+                 "--learning-starts", "900", "--ultho-clusters", "q_lr", "batch_size=16,32", "--batch-size", "16",
                  "--eval-episodes", "0")
     assert result.returncode == 0, result.stdout + result.stderr
     record = read_json(study_dir / "study.json")
