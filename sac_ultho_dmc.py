@@ -702,7 +702,7 @@ def main(args: Args) -> None:
                 "sac": sac.state_dict(), "bandit": bandit.state_dict() if bandit is not None else None,
                 "last_utility": last_utility,
                 # Only the rows in use, copied out (a view would save the whole preallocated buffer).
-                "replay": {"rows": storage[:filled].cpu().clone(), "position": position, "filled": filled},
+                "replay": {"rows": storage[:filled].to("cpu", copy=True), "position": position, "filled": filled},
                 "envs": envs.state_dict(), "next_obs": next_obs,
                 "episode_return": episode_return, "episode_length": episode_length,
                 "recent_returns": list(recent_returns), "recent_lengths": list(recent_lengths),
