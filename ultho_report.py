@@ -70,15 +70,29 @@ PYBULLET_REFERENCE = {
 MINIGRID_RANGE = {"MiniGrid": (0.0, 1.0)}
 """MiniGrid's returns lie in [0, 1] (1 - 0.9 * steps / max_steps on success, else 0): used as they are."""
 
-BENCHMARKS = {"procgen": "Procgen", "atari": "ALE", "minigrid": "MiniGrid", "pybullet": "PyBullet"}
+DMC_RANGE = {re.sub("[^a-z]", "", f"{domain}{task}".lower()): (0.0, 1000.0) for domain, tasks in {
+    "acrobot": "swingup swingup_sparse", "ball_in_cup": "catch", "cheetah": "run", "dog": "stand walk trot run fetch",
+    "cartpole": "balance balance_sparse swingup swingup_sparse two_poles three_poles",
+    "finger": "spin turn_easy turn_hard", "fish": "upright swim", "hopper": "stand hop",
+    "humanoid": "stand walk run run_pure_state", "humanoid_CMU": "stand walk run",
+    "manipulator": "bring_ball bring_peg insert_ball insert_peg", "pendulum": "swingup", "point_mass": "easy hard",
+    "quadruped": "walk run escape fetch", "reacher": "easy hard", "stacker": "stack_2 stack_4",
+    "swimmer": "swimmer6 swimmer15", "walker": "stand walk run"}.items() for task in tasks.split()}
+"""The DeepMind Control Suite's tasks (DOMAIN-TASK, by their letters): returns lie in [0, 1000] (a reward in
+[0, 1] at each of 1000 steps), divided by 1000; not lqr, whose episodes never end and whose reward can be
+negative. Keyed by task, not domain, so that gymnasium ids such as HalfCheetah-v5 or Pendulum-v1, which
+sac_ultho_dmc.py also runs, get no DMC scale."""
+
+BENCHMARKS = {"procgen": "Procgen", "atari": "ALE", "minigrid": "MiniGrid", "pybullet": "PyBullet", "dmc": "DMC"}
 REFERENCES = {"procgen": PROCGEN_EASY, "atari": ALE_HUMAN, "pybullet": PYBULLET_REFERENCE,
-              "minigrid": MINIGRID_RANGE}
+              "minigrid": MINIGRID_RANGE, "dmc": DMC_RANGE}
 NORMALIZATION = {
     "procgen": "Procgen easy-mode min-max normalized test score, (R - R_min) / (R_max - R_min) with Cobbe et al. "
                "2020's constants",
     "atari": "human-normalized score, (R - random) / (human - random)",
     "pybullet": "(R - random policy) / (rl-baselines3-zoo PPO - random policy), the references of docs/paper.md",
     "minigrid": "the final score as it is (MiniGrid's returns lie in [0, 1])",
+    "dmc": "the final score / 1000 (DeepMind Control Suite returns lie in [0, 1000])",
 }
 RETURN_TAG = "charts/episodic_return"
 PAPER_VARIANT = "ucb:level:none"
@@ -408,7 +422,7 @@ class Study:
                 widest[run.benchmark] = run.search_space
         for run in self.runs:
             if run.kind == "ppo":
-                run.label = "PPO"
+                run.label = "SAC" if run.benchmark == "dmc" else "PPO"  # the fixed-settings baseline
                 continue
             if run.kind in HPO_METHODS:
                 run.label = (f"random search ({run.study.get('samples')} samples)" if run.kind == "random" else
@@ -441,7 +455,7 @@ def reported_tag(tag: str) -> bool:
 
 def benchmark_of(script: str) -> str:
     """The benchmark of a script name, with or without ".py" (summary.json leaves it out, the indexes keep it)."""
-    match = re.fullmatch(r"ppo_ultho_(\w+?)(?:\.py)?", os.path.basename(str(script)))
+    match = re.fullmatch(r"(?:ppo|sac)_ultho_(\w+?)(?:\.py)?", os.path.basename(str(script)))
     if not match or match.group(1) not in BENCHMARKS:
         raise ValueError(f"unknown script {script!r}")
     return match.group(1)
