@@ -6,6 +6,7 @@ import os
 import re
 import shlex
 import shutil
+import subprocess
 
 import pytest
 
@@ -58,3 +59,18 @@ def test_a_run_left_out_of_the_data_stops_the_report_unless_a_partial_one_is_ask
     partial = run("ultho_report.py", str(data), "--out", str(tmp_path / "report"), "--no-per-run", "--allow-missing")
     assert partial.returncode == 0, partial.stderr
     assert f"{full_run.name}/summary.json: missing; skipped" in partial.stderr
+
+
+def test_the_exporter_says_when_git_would_leave_its_files_out(tmp_path):
+    subprocess.run(["git", "init", "-q", str(tmp_path)], check=True)
+    (tmp_path / ".gitignore").write_text("runs/\n")  # the unanchored rule that once swallowed results data
+    exported = tmp_path / "results" / "data"
+    result = run("ultho_report.py", os.path.join(RESULTS, "pybullet", "data"), "--out", str(tmp_path / "report"),
+                 "--no-per-run", "--export-data", str(exported))
+    assert result.returncode == 0, result.stderr
+    assert "ultho_report: warning: git ignores" in result.stderr and "a commit would leave them out" in result.stderr
+    (tmp_path / ".gitignore").write_text("/runs/\n")
+    shutil.rmtree(exported)
+    again = run("ultho_report.py", os.path.join(RESULTS, "pybullet", "data"), "--out", str(tmp_path / "report"),
+                "--no-per-run", "--export-data", str(exported))
+    assert again.returncode == 0 and "git ignores" not in again.stderr, again.stderr
