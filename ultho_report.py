@@ -497,8 +497,11 @@ def normalized(benchmark: str, env_id: str, raw: float) -> float | None:
 
 def game_of(env_id: str, table: dict) -> str | None:
     """The table's game named in an environment id ("ALE/Qbert-v5", "procgen-bigfish-v0", ...)."""
-    letters = re.sub("[^a-z]", "", env_id.lower())
-    return next((game for game in sorted(table, key=len, reverse=True) if game.lower() in letters), None)
+    def alphanumeric(name: str) -> str:  # digits kept: Walker2DBulletEnv-v0 names Walker2DBulletEnv
+        return re.sub("[^a-z0-9]", "", name.lower())
+
+    return next((game for game in sorted(table, key=len, reverse=True)
+                 if alphanumeric(game) in alphanumeric(env_id)), None)
 
 
 # ---------------------------------------------------------------------- aggregates (Agarwal et al. 2021)

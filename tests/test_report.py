@@ -11,6 +11,7 @@ import pytest
 
 from helpers import run, run_concurrently, scalars, summary
 from hpo_study import SCRIPT_ARGS
+import ultho_report
 from ultho_report import (PROCGEN_EASY, PYBULLET_REFERENCE, Efficiency, aggregate_with_interval, coverage_groups,
                           game_of, normalized, raw_score, steps_to_threshold)
 
@@ -410,3 +411,14 @@ def test_hpo_studies_are_rows_with_their_whole_budget(pbt_study, tmp_path):
     seen = record["max_observed_score"]
     assert f"({seen['trial']}, {seen['step']:,}) | {len(record['exploits'])} |" in report
     assert "![settings schedules](schedules_minigrid.png)" in report and (tmp_path / "out" / "schedules_minigrid.png").is_file()
+
+
+@pytest.mark.parametrize("env_id", ["AntBulletEnv-v0", "HalfCheetahBulletEnv-v0", "HopperBulletEnv-v0",
+                                    "Walker2DBulletEnv-v0", "ALE/Qbert-v5", "Qbert", "procgen-bigfish-v0",
+                                    "starpilot"])
+def test_every_reference_environment_is_normalized_by_its_own_references(env_id):
+    benchmark = "pybullet" if "Bullet" in env_id else "atari" if "Qbert" in env_id else "procgen"
+    low, high = ultho_report.reference_of(benchmark, env_id)
+    assert ultho_report.game_of(env_id, ultho_report.REFERENCES[benchmark]).lower() in env_id.lower().replace("-", "")
+    assert ultho_report.normalized(benchmark, env_id, high) == 1.0
+    assert ultho_report.normalized(benchmark, env_id, low) == 0.0
