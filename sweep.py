@@ -24,9 +24,9 @@ import sys
 from dataclasses import dataclass, field
 from typing import Optional
 
-from relay_ultho import (RunFailed, UsageError, atomic_write_json, complete_run, parse_split_args, read_json,
-                         resolve_script, run_state, script_command)
 from ultho_bandit import CREDITS, SCALES, STRATEGIES, format_value
+from ultho_runs import (RunFailed, UsageError, atomic_write_json, complete_run, parse_split_args, print_error,
+                        read_json, resolve_script, run_state, script_command)
 
 TOOL = "sweep.py"
 SWEEP_FORMAT = 1
@@ -443,7 +443,7 @@ def main(argv: list[str]) -> int:
         finally:
             executor.close()
     except UsageError as err:
-        print(f"{TOOL}: error: {err}", file=sys.stderr)
+        print_error(TOOL, err)
         return 2
 
 

@@ -43,7 +43,9 @@ import numpy as np  # noqa: E402
 from matplotlib.ticker import EngFormatter  # noqa: E402
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator  # noqa: E402
 
-PROG = "ultho_report"
+from ultho_runs import print_error
+
+PROG = "ultho_report.py"
 
 PROCGEN_EASY = {
     "bigfish": (1, 40), "bossfight": (0.5, 13), "caveflyer": (3.5, 12), "chaser": (0.5, 13),
@@ -1130,12 +1132,13 @@ def write_scalars_csv(series: dict[str, np.ndarray], path: str) -> int:
 
 class OneLineParser(argparse.ArgumentParser):
     def error(self, message: str) -> None:
-        self.exit(2, f"{PROG}: error: {message}\n")
+        print_error(PROG, message)
+        self.exit(2)
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = OneLineParser(
-        prog="ultho_report.py", description=__doc__.replace("``", "").split("\n    python")[0],
+        prog=PROG, description=__doc__.replace("``", "").split("\n    python")[0],
         epilog="examples:\n  python ultho_report.py runs/ --out report/      # then open report/report.md\n"
                "  python ultho_report.py sweeps/procgen/ runs/my_run --out report/ --seed 1 --no-per-run\n"
                "  python ultho_report.py runs/sweep-minigrid --out results/minigrid --export-data results/minigrid/data\n"

@@ -10,7 +10,8 @@ import time
 import pytest
 
 from helpers import REPO, files_under, run, run_concurrently, summary
-from relay_ultho import default_relay_dir, flag_values, without_flag
+from relay_ultho import default_relay_dir
+from ultho_runs import flag_values, without_flag
 
 TOOL = "relay_ultho.py"
 SCRIPT = "ppo_ultho_minigrid.py"

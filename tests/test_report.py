@@ -259,7 +259,7 @@ def test_damaged_files_are_named_once_each_and_skipped(study, tmp_path):
     result = run(REPORT, str(copy), "--out", str(tmp_path / "out"), "--reps", "500", "--no-per-run")
     assert result.returncode == 0 and "Traceback" not in result.stderr, result.stderr
     warnings = result.stderr.splitlines()[:-1]
-    assert all(line.startswith("ultho_report: warning: ") for line in warnings), warnings
+    assert all(line.startswith("ultho_report.py: warning: ") for line in warnings), warnings
     named = {runs[0] / "summary.json": "unreadable", events: "truncated", runs[2]: "no summary.json",
              copy / "relays" / "relay_1" / "relay.json": "relay.json format", procgen: "no TensorBoard event files"}
     for path, what in named.items():
@@ -276,7 +276,7 @@ def test_bad_arguments_are_one_line_and_exit_2(tmp_path):
                                                       ["--help"]])
     for result, what in ((missing, f"no such path: {tmp_path / 'nowhere'}"), (empty, "no run found below")):
         assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
-        assert result.stderr.startswith("ultho_report: error: ") and what in result.stderr
+        assert result.stderr.startswith("ultho_report.py: error: ") and what in result.stderr
     assert help_.returncode == 0 and "python ultho_report.py runs/ --out report/" in help_.stdout
     assert not (tmp_path / "report").exists()
 
