@@ -53,19 +53,19 @@ PROCGEN_EASY = {
     "heist": (3.5, 10), "jumper": (3, 10), "leaper": (3, 10), "maze": (5, 10), "miner": (1.5, 13),
     "ninja": (3.5, 10), "plunder": (4.5, 30), "starpilot": (2.5, 64),
 }
-"""Procgen easy-mode (R_min, R_max), Cobbe et al. 2020 (docs/benchmarks.md)."""
+"""Procgen easy-mode (R_min, R_max), Cobbe et al. 2020 (docs/paper.md; ppo_ultho_procgen.py keeps a copy)."""
 
 ALE_HUMAN = {
     "BattleZone": (2360.0, 37187.5), "DoubleDunk": (-18.6, -16.4), "NameThisGame": (2292.3, 8049.0),
     "Phoenix": (761.4, 7242.6), "Qbert": (163.9, 13455.0),
 }
-"""ALE (random, human) scores for human normalization (docs/benchmarks.md)."""
+"""ALE (random, human) scores for human normalization (docs/paper.md; ppo_ultho_atari.py keeps a copy)."""
 
 PYBULLET_REFERENCE = {
     "AntBulletEnv": (362.6, 2865.9), "HalfCheetahBulletEnv": (-1268.9, 2924.7),
     "HopperBulletEnv": (19.9, 2575.1), "Walker2DBulletEnv": (16.7, 2110.0),
 }
-"""PyBullet (uniform random policy, rl-baselines3-zoo's PPO after 2M steps) returns (docs/benchmarks.md)."""
+"""PyBullet (uniform random policy, rl-baselines3-zoo's PPO after 2M steps) returns (docs/paper.md)."""
 
 MINIGRID_RANGE = {"MiniGrid": (0.0, 1.0)}
 """MiniGrid's returns lie in [0, 1] (1 - 0.9 * steps / max_steps on success, else 0): used as they are."""
@@ -77,7 +77,7 @@ NORMALIZATION = {
     "procgen": "Procgen easy-mode min-max normalized test score, (R - R_min) / (R_max - R_min) with Cobbe et al. "
                "2020's constants",
     "atari": "human-normalized score, (R - random) / (human - random)",
-    "pybullet": "(R - random policy) / (rl-baselines3-zoo PPO - random policy), the references of docs/benchmarks.md",
+    "pybullet": "(R - random policy) / (rl-baselines3-zoo PPO - random policy), the references of docs/paper.md",
     "minigrid": "the final score as it is (MiniGrid's returns lie in [0, 1])",
 }
 RETURN_TAG = "charts/episodic_return"
