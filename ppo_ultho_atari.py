@@ -13,7 +13,7 @@ paper's "reward normalization: yes"), not sign-clipped. Every return that is log
 unclipped game score of a whole game (all lives).
 
 Network: CleanRL's Nature CNN (three convolutions, a 512-unit layer, linear actor and critic heads), on the
-observation divided by 255, in channels-last memory order (measured faster on the CPU). ``--precision bf16``
+observation divided by 255, in channels-last memory order (faster on the CPU, docs/atari.md). ``--precision bf16``
 runs its convolutions and linear layers under bfloat16 autocast; its outputs, and all of PPO's arithmetic after
 them, stay float32 (docs/precision.md).
 
@@ -90,8 +90,8 @@ class Args:
     cuda: bool = True
     """if toggled, use CUDA when it is available"""
     torch_threads: int = 0
-    """CPU threads for torch (0: one per core, torch's own default). On an idle 2-core machine two threads
-    make the CNN's update about 1.7x faster than one; set 1 when other jobs share the cores"""
+    """CPU threads for torch (0: one per core, torch's own default); set 1 when other jobs share the cores
+    (docs/atari.md has the measurements)"""
     precision: Literal["float32", "bf16"] = "float32"
     """float32 (the paper's) or bf16: the network's convolutions and linear layers under bfloat16 autocast, on
     the CPU (AVX512-BF16 or AMX) or CUDA; weights, optimizer, log-probabilities, ratio and losses stay float32
@@ -418,7 +418,7 @@ class Agent(nn.Module):
         )
         self.actor = layer_init(nn.Linear(512, num_actions), std=0.01)
         self.critic = layer_init(nn.Linear(512, 1), std=1)
-        # Channels-last convolutions are measured faster on the CPU (see the README's Performance section).
+        # Channels-last convolutions are faster on the CPU (docs/atari.md, Speed).
         self.to(memory_format=torch.channels_last)
 
     def features(self, obs: torch.Tensor) -> torch.Tensor:
@@ -573,7 +573,7 @@ def main(args: Args) -> None:
         start_iteration = checkpoint["iteration"] + 1
         global_step = checkpoint["global_step"]
         elapsed_before, ultho_seconds = checkpoint["elapsed"], checkpoint["ultho_seconds"]
-        # Checkpoints from before these were recorded count from here.
+        # A checkpoint without the phase timings starts them from zero.
         rollout_seconds, update_seconds = checkpoint.get("rollout_seconds", 0.0), checkpoint.get("update_seconds", 0.0)
         return_rms.__dict__.update(checkpoint["return_rms"])
         recent_returns.extend(checkpoint["recent_returns"])

@@ -91,8 +91,8 @@ class Args:
     cuda: bool = True
     """if toggled, use CUDA when it is available"""
     torch_threads: int = 0
-    """CPU threads for torch (0: one per core, torch's own default). On an idle 2-core machine two threads
-    make the CNN's update about 1.7x faster than one; set 1 when other jobs share the cores"""
+    """CPU threads for torch (0: one per core, torch's own default); set 1 when other jobs share the cores
+    (docs/procgen.md has the measurements)"""
     precision: Literal["float32", "bf16"] = "float32"
     """float32 (the paper's) or bf16: the network's convolutions and linear layers under bfloat16 autocast, on
     the CPU (AVX512-BF16 or AMX) or CUDA; weights, optimizer, log-probabilities, ratio and losses stay float32
@@ -443,8 +443,8 @@ class ConvSequence(nn.Module):
 
 
 class Agent(nn.Module):
-    """CleanRL's IMPALA CNN (Espeholt et al. 2018) with a shared trunk, in channels-last memory format
-    (measured on 2 CPU cores: the update is about 15% faster than channels-first)."""
+    """CleanRL's IMPALA CNN (Espeholt et al. 2018) with a shared trunk, in channels-last memory format, whose
+    update is faster on the CPU than channels-first (docs/procgen.md, Speed)."""
 
     def __init__(self, obs_shape: tuple[int, int, int], num_actions: int, precision: str):
         super().__init__()
@@ -634,7 +634,7 @@ def main(args: Args) -> None:
         start_iteration = checkpoint["iteration"] + 1
         global_step = checkpoint["global_step"]
         elapsed_before, ultho_seconds = checkpoint["elapsed"], checkpoint["ultho_seconds"]
-        # Checkpoints from before these were recorded count from here.
+        # A checkpoint without the phase timings starts them from zero.
         rollout_seconds, update_seconds = checkpoint.get("rollout_seconds", 0.0), checkpoint.get("update_seconds", 0.0)
         episode_return, episode_length = checkpoint["episode_return"], checkpoint["episode_length"]
         recent_returns.extend(checkpoint["recent_returns"])

@@ -57,8 +57,8 @@ def checked_full_summary(summary: dict, where: str) -> tuple[str, str]:
     if sum(bandit["selections"].values()) == 0:
         raise UsageError(f"{where} credited no selection (selections {bandit['selections']}): it says nothing "
                          "about its clusters; give it more than one iteration")
-    # Recomputed rather than read, so that full runs summarised before the NOI rule took "the least-selected
-    # other cluster" still get two different clusters.
+    # Recomputed from the selections rather than read: clusters_of_interest always gives two different
+    # clusters, which a summary's stored coi and noi need not be.
     return clusters_of_interest(bandit["selections"])
 
 

@@ -46,8 +46,8 @@ class Preset:
     total_timesteps: int
     """the paper's budget per run (docs/paper.md, Table 3)"""
     measured_sps: float
-    """single-run steps per second, ULTHO on, as measured in the README (CPU for MiniGrid and PyBullet, one
-    H100 for ALE and Procgen), for the compute estimate"""
+    """single-run steps per second, ULTHO on, for the compute estimate: the Speed sections of docs/minigrid.md
+    and docs/pybullet.md (a 2-core CPU) and docs/performance.md#gpu (one H100, for ALE and Procgen)"""
 
 
 PROCGEN_GAMES = ("bigfish", "bossfight", "caveflyer", "chaser", "climber", "coinrun", "dodgeball", "fruitbot",

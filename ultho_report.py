@@ -412,7 +412,7 @@ class Study:
 
 
 def variant_of(bandit: dict) -> str:
-    """strategy:credit:scale of a summary's bandit; summaries from before the variants are the paper's."""
+    """strategy:credit:scale of a summary's bandit; a summary that names none is the paper's bandit."""
     return ":".join(str(bandit.get(key, default)) for key, default in zip(("strategy", "credit", "scale"),
                                                                           PAPER_VARIANT.split(":")))
 
@@ -1152,7 +1152,7 @@ def main(argv: list[str] | None = None) -> None:
                         "intervals (default: 0)")
     parser.add_argument("--reps", type=int, default=50_000, help="bootstrap resamples (default: 50000, as rliable)")
     parser.add_argument("--no-per-run", dest="per_run", action="store_false", help="skip the per-run decision "
-                        "figures (one PNG per ULTHO run, about a second each; the aggregated ones stay)")
+                        "figures (one PNG per ULTHO run; the aggregated ones stay)")
     parser.add_argument("--solve-threshold", type=float, default=0.9, metavar="SCORE",
                         help="the score (on the aggregate table's scale) a run must reach to count as solved in the "
                              "sample-efficiency table (default: 0.9, e.g. MiniGrid return 0.9)")
