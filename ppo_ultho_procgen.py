@@ -186,8 +186,8 @@ class Args:
     resume: Optional[str] = None
     """run directory to continue to its --total-timesteps; its checkpoint's settings are used"""
     init_from: Optional[str] = None
-    """run directory whose checkpoint this run starts from: network, optimizer state, reward normalization, environments and counters are
-    taken from it, every setting from this command line (docs/hpo_baselines.md)"""
+    """run directory whose checkpoint this run starts from: network, optimizer state, reward normalization,
+    environments and counters are taken from it, every setting from this command line (docs/hpo_baselines.md)"""
     quiet: bool = False
     """print nothing but errors"""
 
@@ -250,7 +250,7 @@ def load_checkpoint(run_dir: str, flag: str) -> dict:
     try:
         checkpoint = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as err:  # noqa: BLE001  (any unreadable file is bad input)
-        raise UsageError(f"{flag} {run_dir}: checkpoint.pt is unreadable ({err.__class__.__name__})")
+        raise UsageError(f"{flag} {run_dir}: checkpoint.pt is unreadable ({err.__class__.__name__})") from None
     if not isinstance(checkpoint, dict) or checkpoint.get("script") != SCRIPT:
         raise UsageError(f"{flag} {run_dir}: checkpoint.pt is not a {SCRIPT} checkpoint")
     if checkpoint.get("format") != CHECKPOINT_FORMAT:
@@ -267,7 +267,8 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
     if args.resume is not None:
         checkpoint = load_checkpoint(args.resume, "--resume")
         resumed = Args(**checkpoint["config"])
-        resumed.resume, resumed.quiet, resumed.cuda, resumed.torch_threads = args.resume, args.quiet, args.cuda, args.torch_threads
+        resumed.resume, resumed.quiet, resumed.cuda, resumed.torch_threads = (args.resume, args.quiet, args.cuda,
+                                                                               args.torch_threads)
         args.__dict__.update(resumed.__dict__)
     elif args.init_from is not None:
         checkpoint = load_checkpoint(args.init_from, "--init-from")
@@ -293,7 +294,8 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
     if args.update_chunk < 0:
         raise UsageError(f"--update-chunk must be >= 0 (0: automatic), got {args.update_chunk}")
     if args.start_level + args.num_levels >= 2**31:
-        raise UsageError(f"--start-level {args.start_level} with --num-levels {args.num_levels} exceeds procgen's 31-bit level seeds")
+        raise UsageError(f"--start-level {args.start_level} with --num-levels {args.num_levels} exceeds procgen's "
+                         "31-bit level seeds")
     batch_size = args.num_envs * args.num_steps
     if args.total_timesteps < batch_size:
         raise UsageError(f"--total-timesteps {args.total_timesteps} is less than one rollout ({batch_size} steps)")
@@ -326,7 +328,8 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
 
 def is_run_of_this_script(run_dir: str) -> bool:
     try:
-        return torch.load(os.path.join(run_dir, "checkpoint.pt"), map_location="cpu", weights_only=False)["script"] == SCRIPT
+        return torch.load(os.path.join(run_dir, "checkpoint.pt"), map_location="cpu",
+                          weights_only=False)["script"] == SCRIPT
     except Exception:  # noqa: BLE001  (missing or foreign: not a run to continue)
         return False
 
@@ -384,7 +387,8 @@ def make_envs(args: "Args", num_envs: int, test: bool, seed: int) -> ProcgenVecE
     """Training environments draw levels start_level .. start_level + num_levels - 1; test environments draw
     from the full distribution (num_levels=0)."""
     if test:
-        return ProcgenVecEnv(args.env_id, num_envs, num_levels=0, start_level=0, seed=seed, num_threads=args.env_threads)
+        return ProcgenVecEnv(args.env_id, num_envs, num_levels=0, start_level=0, seed=seed,
+                             num_threads=args.env_threads)
     return ProcgenVecEnv(args.env_id, num_envs, args.num_levels, args.start_level, seed, num_threads=args.env_threads)
 
 
@@ -402,7 +406,8 @@ class RewardNormalizer:
         batch_mean, batch_var, batch_count = self.returns.mean(), self.returns.var(), len(self.returns)
         delta, total = batch_mean - self.mean, self.count + batch_count
         self.mean = self.mean + delta * batch_count / total
-        self.var = (self.var * self.count + batch_var * batch_count + delta**2 * self.count * batch_count / total) / total
+        self.var = (self.var * self.count + batch_var * batch_count
+                    + delta**2 * self.count * batch_count / total) / total
         self.count = total
         return np.clip(reward / np.sqrt(self.var + self.epsilon), -10, 10)
 
@@ -493,7 +498,8 @@ def update_chunk_size(args: Args, device: torch.device) -> int:
 
 
 def ppo_loss(agent: Agent, args: Args, obs: torch.Tensor, actions: torch.Tensor, old_logprobs: torch.Tensor,
-             advantages: torch.Tensor, returns: torch.Tensor, old_values: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+             advantages: torch.Tensor, returns: torch.Tensor,
+             old_values: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """PPO's clipped loss on these samples (advantages as the update uses them) and its statistics: policy loss,
     value loss, entropy, old approximate KL, approximate KL, clip fraction."""
     new_log_probs, newvalue = agent(obs)
@@ -663,7 +669,8 @@ def main(args: Args) -> None:
         atomic_save_torch(checkpoint_path, {
             "script": SCRIPT, "format": CHECKPOINT_FORMAT, "config": config,
             "settings": {name: getattr(args, name) for name in TUNABLE},
-            "iteration": iteration, "global_step": global_step, "elapsed": elapsed_before + time.time() - start_time - eval_seconds,
+            "iteration": iteration, "global_step": global_step,
+            "elapsed": elapsed_before + time.time() - start_time - eval_seconds,
             "ultho_seconds": ultho_seconds, "rollout_seconds": rollout_seconds, "update_seconds": update_seconds,
             "agent": agent.state_dict(), "optimizer": optimizer.state_dict(),
             "bandit": bandit.state_dict() if bandit is not None else None,
@@ -792,9 +799,11 @@ def main(args: Args) -> None:
         if not all(map(math.isfinite, (pg_mean, v_mean, ent_mean))):
             progress.close()
             writer.close()
-            last = f"the last good checkpoint is {checkpoint_path}" if os.path.exists(checkpoint_path) else "no checkpoint was written"
+            last = (f"the last good checkpoint is {checkpoint_path}" if os.path.exists(checkpoint_path)
+                    else "no checkpoint was written")
             print(f"{SCRIPT}: error: non-finite loss at iteration {iteration} (step {global_step}) with "
-                  f"{', '.join(f'{n}={format_value(getattr(args, n))}' for n in tuned)}; stopped, {last}", file=sys.stderr)
+                  f"{', '.join(f'{n}={format_value(getattr(args, n))}' for n in tuned)}; stopped, {last}",
+                  file=sys.stderr)
             sys.exit(1)
 
         if bandit is not None and args.ultho_utility == "value-after":
@@ -837,7 +846,8 @@ def main(args: Args) -> None:
             tick = time.time()
             test_returns, _ = evaluate(agent, args, device, iteration)
             writer.add_scalar("eval/test_return", float(np.mean(test_returns)), global_step)
-            writer.add_scalar("eval/normalized_test_return", normalized_score(args.env_id, float(np.mean(test_returns))), global_step)
+            writer.add_scalar("eval/normalized_test_return",
+                              normalized_score(args.env_id, float(np.mean(test_returns))), global_step)
             eval_seconds += time.time() - tick
 
         recent = f"{np.mean(recent_returns):.3g}" if recent_returns else "-"
@@ -854,7 +864,8 @@ def main(args: Args) -> None:
     envs.close()
 
     wall_time = elapsed_before + time.time() - start_time - eval_seconds
-    eval_returns, eval_level_seeds = evaluate(agent, args, device, num_iterations) if args.eval_episodes > 0 else ([], [])
+    eval_returns, eval_level_seeds = (evaluate(agent, args, device, num_iterations) if args.eval_episodes > 0
+                                      else ([], []))
     train_score = float(np.mean(recent_returns)) if recent_returns else None
     test_score = float(np.mean(eval_returns)) if eval_returns else None
     if eval_returns:

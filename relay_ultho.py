@@ -165,13 +165,15 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
         epilog="examples:\n"
                "  python relay_ultho.py ppo_ultho_procgen.py -- --env-id starpilot --seed 1\n"
                "  python relay_ultho.py ppo_ultho_minigrid.py --from runs/<a finished ULTHO run>\n"
-               "  python relay_ultho.py ppo_ultho_minigrid.py --relay-dir runs/relay-doorkey -- --ultho-c 1 --ultho-window 50\n"
+               "  python relay_ultho.py ppo_ultho_minigrid.py --relay-dir runs/relay-doorkey -- "
+               "--ultho-c 1 --ultho-window 50\n"
                "\nThe tool sets the script's --runs-dir, --run-name and --resume itself; --no-ultho and --init-from "
                "are refused.",
     )
     parser.add_argument("script", help="the training script, e.g. ppo_ultho_minigrid.py")
     parser.add_argument("--from", dest="from_run", metavar="RUN_DIR",
-                        help="reuse this finished full ULTHO run instead of starting one (its env id and seed are used)")
+                        help="reuse this finished full ULTHO run instead of starting one (its env id and seed are "
+                             "used)")
     parser.add_argument("--relay-dir", metavar="DIR", help="where the runs and relay.json go (default: "
                         "runs/relay__<script>__<env>__<seed>__<hash of the arguments>)")
     parser.add_argument("--max-retries", type=int, default=2, metavar="N",

@@ -32,16 +32,16 @@ import os
 import re
 import shutil
 import sys
-from collections import Counter, defaultdict
+from collections import defaultdict
 from dataclasses import dataclass, field
 
 import matplotlib
 
 matplotlib.use("Agg")  # headless: figures go to files only
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.ticker import EngFormatter  # noqa: E402
-from tensorboard.backend.event_processing.event_accumulator import EventAccumulator  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.ticker import EngFormatter
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from ultho_runs import print_error
 
@@ -691,7 +691,7 @@ def efficiency_figure(runs: list[Run], benchmark: str, colors: dict, threshold: 
             shares = [0.0, *(np.arange(1, len(reached) + 1) / len(members)), len(reached) / len(members)]
             panel.step(steps, 100 * np.array(shares), where="post", color=colors[label], label=label)
         panel.set_title(env_id, fontsize=10)
-        panel.set_ylabel(f"runs solved (%)")
+        panel.set_ylabel("runs solved (%)")
         panel.set_ylim(-3, 103)
         steps_axis(panel)
         panel.grid(alpha=0.3)

@@ -21,10 +21,11 @@
 At the end of every rollout, before SB3 runs ``train()`` on it, the callback credits the previous choice
 with the rollout's mean value estimate (``utility="return"``: its mean GAE return), lets the bandit
 (``ultho_bandit.ULTHO``; extra keyword arguments such as ``strategy``, ``credit`` or ``scale`` go to it) select
-one cluster and one value, and puts that value in force for the coming ``train()``. Every other setting keeps the value it had. Clusters: ``learning_rate``, ``batch_size``,
-``n_epochs``, ``vf_coef``, ``ent_coef``, ``clip_range``, ``max_grad_norm``, ``gae_lambda``; A2C has no
-``batch_size``, ``n_epochs`` or ``clip_range``. The bandit's ``scalars()``, the credit and the settings in
-force (``hparams/<name>``) go through SB3's logger, so they appear in the TensorBoard run SB3 writes.
+one cluster and one value, and puts that value in force for the coming ``train()``. Every other setting keeps
+the value it had. Clusters: ``learning_rate``, ``batch_size``, ``n_epochs``, ``vf_coef``, ``ent_coef``,
+``clip_range``, ``max_grad_norm``, ``gae_lambda``; A2C has no ``batch_size``, ``n_epochs`` or ``clip_range``.
+The bandit's ``scalars()``, the credit and the settings in force (``hparams/<name>``) go through SB3's logger, so
+they appear in the TensorBoard run SB3 writes.
 
 ``docs/sb3.md`` explains what is credited when, how each setting is put in force (SB3 resets the learning
 rate and the clip range from schedules in every ``train()``), saving and resuming, and the callback's cost.

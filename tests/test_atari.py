@@ -68,7 +68,8 @@ def test_smoke_run_summary_fields(smoke_run):
     assert s["rollout_seconds"] + s["update_seconds"] < s["wall_time_s"]
     assert s["peak_rss_mb"] > 0 and (s["peak_cuda_mb"] is None) == (s["device"] == "cpu")
     assert 0 < s["final_score_episodes"] <= 100
-    assert s["human_normalized_score"] == pytest.approx((s["final_score"] - QBERT_RANDOM) / (QBERT_HUMAN - QBERT_RANDOM))
+    assert s["human_normalized_score"] == pytest.approx((s["final_score"] - QBERT_RANDOM)
+                                                        / (QBERT_HUMAN - QBERT_RANDOM))
     assert s["eval"]["episodes"] == 2 and len(s["eval"]["returns"]) == 2
     assert sum(s["bandit"]["selections"].values()) == 3  # the last selection is never credited
     assert s["bandit"]["coi"] in SPACE and s["bandit"]["noi"] in SPACE

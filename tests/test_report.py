@@ -62,7 +62,8 @@ def study(tmp_path_factory):
                 str(relay_dir), "--run-name", role]
         for role, cluster in relay_runs.items()])
     assert all(r.returncode == 0 for r in results), [r.stderr for r in results]
-    scores = {"full": full["final_score"]} | {role: summary(str(relay_dir / role))["final_score"] for role in relay_runs}
+    scores = {"full": full["final_score"]} | {role: summary(str(relay_dir / role))["final_score"]
+                                              for role in relay_runs}
     winner = "coi" if scores["coi"] >= scores["noi"] else "noi"
     relay = {"format": 1, "script": SCRIPT, "script_args": TINY, "env_id": ENVS[0], "seed": 1, "status": "done",
              "full_run": str(full_run), "coi": relay_runs["coi"], "noi": relay_runs["noi"], "coi_run": "coi",
@@ -81,7 +82,8 @@ def study(tmp_path_factory):
 def reports(study, tmp_path_factory):
     """The full report, and the same --seed again without the per-run figures, both at once."""
     out = tmp_path_factory.mktemp("reports")
-    common = [str(study), "--seed", "7", "--reps", "5000", "--solve-threshold", str(SOLVE_THRESHOLD), "--solve-window", "2"]
+    common = [str(study), "--seed", "7", "--reps", "5000", "--solve-threshold", str(SOLVE_THRESHOLD),
+              "--solve-window", "2"]
     results = run_concurrently(REPORT, [common + ["--out", str(out / "a")],
                                         common + ["--out", str(out / "b"), "--no-per-run"]])
     for result in results:
@@ -371,7 +373,8 @@ def test_methods_are_aggregated_only_over_the_environments_they_all_cover():
 
 def test_bandit_variants_are_methods_of_their_own(tmp_path):
     """A Thompson-sampling run beside a paper ULTHO run: its own label (no c, which it does not use), its own row."""
-    jobs = [TINY + SPACE + ["--env-id", ENVS[0], "--seed", "1", "--runs-dir", str(tmp_path / "runs"), "--run-name", name]
+    jobs = [TINY + SPACE + ["--env-id", ENVS[0], "--seed", "1", "--runs-dir", str(tmp_path / "runs"),
+                            "--run-name", name]
             + extra for name, extra in (("paper", []), ("ts", ["--ultho-strategy", "ts", "--ultho-credit",
                                                                 "improvement", "--ultho-scale", "running"]))]
     for result in run_concurrently(SCRIPT, jobs):
@@ -409,4 +412,5 @@ def test_hpo_studies_are_rows_with_their_whole_budget(pbt_study, tmp_path):
     report = (tmp_path / "out" / "report.md").read_text()
     seen = record["max_observed_score"]
     assert f"({seen['trial']}, {seen['step']:,}) | {len(record['exploits'])} |" in report
-    assert "![settings schedules](schedules_minigrid.png)" in report and (tmp_path / "out" / "schedules_minigrid.png").is_file()
+    assert "![settings schedules](schedules_minigrid.png)" in report
+    assert (tmp_path / "out" / "schedules_minigrid.png").is_file()
