@@ -25,12 +25,14 @@ report can be redrawn: ``python ultho_report.py DIR --out ...``.
 
 import argparse
 import csv
+import itertools
 import json
 import logging
 import math
 import os
 import re
 import shutil
+import subprocess
 import sys
 from collections import defaultdict
 from dataclasses import dataclass, field
@@ -70,15 +72,29 @@ PYBULLET_REFERENCE = {
 MINIGRID_RANGE = {"MiniGrid": (0.0, 1.0)}
 """MiniGrid's returns lie in [0, 1] (1 - 0.9 * steps / max_steps on success, else 0): used as they are."""
 
-BENCHMARKS = {"procgen": "Procgen", "atari": "ALE", "minigrid": "MiniGrid", "pybullet": "PyBullet"}
+DMC_RANGE = {re.sub("[^a-z]", "", f"{domain}{task}".lower()): (0.0, 1000.0) for domain, tasks in {
+    "acrobot": "swingup swingup_sparse", "ball_in_cup": "catch", "cheetah": "run", "dog": "stand walk trot run fetch",
+    "cartpole": "balance balance_sparse swingup swingup_sparse two_poles three_poles",
+    "finger": "spin turn_easy turn_hard", "fish": "upright swim", "hopper": "stand hop",
+    "humanoid": "stand walk run run_pure_state", "humanoid_CMU": "stand walk run",
+    "manipulator": "bring_ball bring_peg insert_ball insert_peg", "pendulum": "swingup", "point_mass": "easy hard",
+    "quadruped": "walk run escape fetch", "reacher": "easy hard", "stacker": "stack_2 stack_4",
+    "swimmer": "swimmer6 swimmer15", "walker": "stand walk run"}.items() for task in tasks.split()}
+"""The DeepMind Control Suite's tasks (DOMAIN-TASK, by their letters): returns lie in [0, 1000] (a reward in
+[0, 1] at each of 1000 steps), divided by 1000; not lqr, whose episodes never end and whose reward can be
+negative. Keyed by task, not domain, so that gymnasium ids such as HalfCheetah-v5 or Pendulum-v1, which
+sac_ultho_dmc.py also runs, get no DMC scale."""
+
+BENCHMARKS = {"procgen": "Procgen", "atari": "ALE", "minigrid": "MiniGrid", "pybullet": "PyBullet", "dmc": "DMC"}
 REFERENCES = {"procgen": PROCGEN_EASY, "atari": ALE_HUMAN, "pybullet": PYBULLET_REFERENCE,
-              "minigrid": MINIGRID_RANGE}
+              "minigrid": MINIGRID_RANGE, "dmc": DMC_RANGE}
 NORMALIZATION = {
     "procgen": "Procgen easy-mode min-max normalized test score, (R - R_min) / (R_max - R_min) with Cobbe et al. "
                "2020's constants",
     "atari": "human-normalized score, (R - random) / (human - random)",
     "pybullet": "(R - random policy) / (rl-baselines3-zoo PPO - random policy), the references of docs/paper.md",
     "minigrid": "the final score as it is (MiniGrid's returns lie in [0, 1])",
+    "dmc": "the final score / 1000 (DeepMind Control Suite returns lie in [0, 1000])",
 }
 RETURN_TAG = "charts/episodic_return"
 PAPER_VARIANT = "ucb:level:none"
@@ -121,6 +137,7 @@ class Run:
     eval_score: float | None = None  # raw mean return of the final evaluation (Procgen: the test levels)
     curve: np.ndarray | None = None  # (T, 2): step, episodic return
     curve_budget: int = 0  # the steps the curve's run trained for (a relay: its winning run's)
+    start_offset: int = 0  # steps spent before the curve's run began (a relay: its full ULTHO run's)
     series: dict[str, np.ndarray] = field(default_factory=dict)  # ultho/* tags -> (T, 2)
     search_space: dict[str, list] | None = None
     variant: str = "ucb:level:none"  # the bandit's strategy:credit:scale (summary.json; the paper's when absent)
@@ -138,15 +155,23 @@ class Study:
         self.runs: list[Run] = []
         self.warnings: list[str] = []
         self.missing: list[str] = []
+        self.absent: list[str] = []  # runs that a sweep, relay or study refers to and that are not there
         self.grid: dict[tuple[str, str], set] = defaultdict(set)  # (benchmark, env_id) -> {(c, W)} of the sweeps
         self._seen: set[str] = set()
         self.files: list[str] = []  # every file the study was read from, for --export-data
 
     def warn(self, path: str, what: str) -> None:
+        """Collected while reading; main() prints them once it knows the report will be drawn."""
         line = f"{path}: {what}"
         if line not in self.warnings:
             self.warnings.append(line)
-            print(f"{PROG}: warning: {line}", file=sys.stderr)
+
+    def referenced(self, run_dir: str, by: str) -> bool:
+        """Whether a run that ``by`` refers to has its summary.json; when not, it is recorded as absent."""
+        if os.path.isfile(os.path.join(run_dir, "summary.json")):
+            return True
+        self.absent.append(f"{run_dir} (referred to by {by})")
+        return False
 
     def read_json(self, path: str) -> dict | None:
         try:
@@ -261,6 +286,7 @@ class Study:
                     self.missing.append(f"sweep run `{entry['name']}` ({entry['method']}, {entry['env_id']}, seed "
                                         f"{entry['seed']}) is {entry['status']}{error}")
                 elif not os.path.isdir(where):
+                    self.absent.append(f"{where} (listed as done in {path})")
                     self.warn(where, "listed as done in sweep.json but not there; skipped")
                 else:
                     kind = entry["method"]
@@ -284,6 +310,9 @@ class Study:
         except (KeyError, TypeError, ValueError) as err:
             self.warn(path, f"not in the relay.json format ({err.__class__.__name__}: {err}); skipped")
             return
+        for role in ("full", "coi", "noi"):
+            if relay.get(f"{role}_run"):
+                self.referenced(os.path.normpath(os.path.join(directory, relay[f"{role}_run"])), path)
         winner = self.read_summary(winner_dir)
         if winner is None:
             return
@@ -295,7 +324,7 @@ class Study:
         run = Run(directory, benchmark, env_id, "relay", full_bandit.get("c"), full_bandit.get("window"), seed,
                   budget, *raw_score(winner, benchmark), eval_score=eval_score(winner),
                   curve=self.read_scalars(winner_dir).get(RETURN_TAG), curve_budget=int(winner["global_step"]),
-                  variant=variant_of(full_bandit))
+                  start_offset=int(full.get("global_step") or 0), variant=variant_of(full_bandit))
         self.runs.append(run)
 
     def load_study(self, directory: str) -> None:
@@ -306,7 +335,8 @@ class Study:
             return
         try:
             if study["status"] != "done":
-                self.missing.append(f"study `{directory}` ({study['method']}, seed {study['seed']}) is {study['status']}")
+                self.missing.append(
+                    f"study `{directory}` ({study['method']}, seed {study['seed']}) is {study['status']}")
                 return
             method, seed, budget = str(study["method"]), int(study["seed"]), int(study["budget"]["total_steps"])
             if method not in HPO_METHODS:
@@ -319,6 +349,8 @@ class Study:
         except (KeyError, TypeError, ValueError) as err:
             self.warn(path, f"not in the study.json format ({err.__class__.__name__}: {err}); skipped")
             return
+        for trial in trials.values():
+            self.referenced(os.path.normpath(os.path.join(directory, trial["run_dir"])), path)
         for trial in trials.values():  # every trial's summary, so that --export-data keeps the whole study
             if trial["run_dir"] != trials[study["best_trial"]]["run_dir"]:
                 self.read_summary(os.path.join(directory, trial["run_dir"]))
@@ -393,7 +425,7 @@ class Study:
                 widest[run.benchmark] = run.search_space
         for run in self.runs:
             if run.kind == "ppo":
-                run.label = "PPO"
+                run.label = "SAC" if run.benchmark == "dmc" else "PPO"  # the fixed-settings baseline
                 continue
             if run.kind in HPO_METHODS:
                 run.label = (f"random search ({run.study.get('samples')} samples)" if run.kind == "random" else
@@ -426,7 +458,7 @@ def reported_tag(tag: str) -> bool:
 
 def benchmark_of(script: str) -> str:
     """The benchmark of a script name, with or without ".py" (summary.json leaves it out, the indexes keep it)."""
-    match = re.fullmatch(r"ppo_ultho_(\w+?)(?:\.py)?", os.path.basename(str(script)))
+    match = re.fullmatch(r"(?:ppo|sac)_ultho_(\w+?)(?:\.py)?", os.path.basename(str(script)))
     if not match or match.group(1) not in BENCHMARKS:
         raise ValueError(f"unknown script {script!r}")
     return match.group(1)
@@ -566,10 +598,34 @@ def steps_text(steps: float) -> str:
     return f"{steps / 1e3:.0f}k" if steps < 1e6 else f"{steps / 1e6:.3g}M"
 
 
-def efficiency_of(runs: list[Run], threshold: float, window: int) -> Efficiency:
+def efficiency_of(runs: list[Run], threshold: float, window: int, from_start: bool = False) -> Efficiency:
+    """``from_start``: count the steps a method spent before its scored run began (a relay's full run) too."""
     scored = [r for r in runs if r.curve is not None and reference_of(r.benchmark, r.env_id) is not None]
-    return Efficiency([steps_to_threshold(r.curve, r.benchmark, r.env_id, threshold, window) for r in scored],
-                      [r.curve_budget for r in scored])
+    offsets = [r.start_offset if from_start else 0 for r in scored]
+    steps = [steps_to_threshold(r.curve, r.benchmark, r.env_id, threshold, window) for r in scored]
+    return Efficiency([None if s is None else s + offset for s, offset in zip(steps, offsets)],
+                      [r.curve_budget + offset for r, offset in zip(scored, offsets)])
+
+
+def better_of_two(runs: list[Run]) -> list[Run]:
+    """Fixed-settings PPO selected as a relay is: for every pair of seeds on an environment, the run with the
+    higher final score (the lower seed on a tie, as a relay prefers its COI run)."""
+    winners = []
+    for env_id in sorted({r.env_id for r in runs}):
+        scored = sorted((r for r in runs if r.env_id == env_id and r.raw_score is not None), key=lambda r: r.seed)
+        winners += [a if a.raw_score >= b.raw_score else b for a, b in itertools.combinations(scored, 2)]
+    return winners
+
+
+def normalized_area(run: Run) -> float | None:
+    """The area under the run's normalized learning curve divided by its length: the mean score over training
+    (trapezoids between the logged returns, from the first logged step to the last)."""
+    reference = reference_of(run.benchmark, run.env_id)
+    if run.curve is None or len(run.curve) < 2 or reference is None:
+        return None
+    low, high = reference
+    steps, scores = run.curve[:, 0], (run.curve[:, 1] - low) / (high - low)
+    return float(np.sum((scores[1:] + scores[:-1]) / 2 * np.diff(steps)) / (steps[-1] - steps[0]))
 
 
 # ---------------------------------------------------------------------- series helpers
@@ -943,7 +999,8 @@ def benchmark_section(study: Study, benchmark: str, args: argparse.Namespace, ro
               + "Also in [aggregate.csv](aggregate.csv).", ""]
     for group_envs, group_methods in coverage_groups(runs, methods):
         lines += [f"Over {len(group_envs)} environment{'s' * (len(group_envs) > 1)}: {', '.join(group_envs)}.", "",
-                  "| method | environments | runs | mean (%) [95% CI] | IQM (%) [95% CI] | budget per run or study (steps) |",
+                  "| method | environments | runs | mean (%) [95% CI] | IQM (%) [95% CI] "
+                  "| budget per run or study (steps) |",
                   "|---|---|---|---|---|---|"]
         for label in group_methods:
             members = [r for r in runs if r.label == label]
@@ -964,18 +1021,50 @@ def benchmark_section(study: Study, benchmark: str, args: argparse.Namespace, ro
     threshold, window = args.solve_threshold, args.solve_window
     efficiency = efficiency_figure(runs, benchmark, colors, threshold, window, out)
     if efficiency:
+        relays = any(r.kind == "relay" for r in runs)
+        ppo = [r for r in runs if r.kind == "ppo"]
+        paired = relays and len(ppo) > len({r.env_id for r in ppo})
         lines += ["### Sample efficiency", "",
                   f"Steps to solve: the first environment step at which a run's running score (the mean of its last "
                   f"{window} logged training returns, each the mean return of the episodes that ended in one "
                   f"iteration, on the scale above) reaches {threshold:g}. Each cell: the mean over runs, a run that "
                   "never reached it counted with its whole budget (then the mean is a lower bound, marked ≥), and "
-                  "(runs that reached it / runs). Relay-ULTHO: its winning run, from that run's start.", "",
-                  "| method | " + " | ".join(envs) + " | all |", "|---|" + "---|" * (len(envs) + 1)]
-        for label in methods:
-            members = [r for r in runs if r.label == label]
+                  "(runs that reached it / runs)."
+                  + (" Relay-ULTHO: its winning run, from that run's start; the last column counts from the relay's "
+                     "start instead, its full ULTHO run's steps included (the COI and NOI runs side by side)."
+                     if relays else "")
+                  + (" PPO, better of 2 seeds: fixed PPO selected as a relay selects, the run with the higher final "
+                     "score of every pair of seeds on an environment (all pairs), scored by that run."
+                     if paired else ""), "",
+                  "| method | " + " | ".join(envs) + " | all |" + (" all, from the relay's start |" if relays else ""),
+                  "|---|" + "---|" * (len(envs) + 1 + relays)]
+        rows_of = [(label, [r for r in runs if r.label == label]) for label in methods]
+        if paired:
+            rows_of.insert(methods.index("PPO") + 1, ("PPO, better of 2 seeds", better_of_two(ppo)))
+        for label, members in rows_of:
             cells = [efficiency_of([r for r in members if r.env_id == env], threshold, window).text() for env in envs]
-            lines.append(f"| {label} | " + " | ".join(cells) + f" | {efficiency_of(members, threshold, window).text()} |")
+            cells.append(efficiency_of(members, threshold, window).text())
+            if relays:
+                cells.append(efficiency_of(members, threshold, window, from_start=True).text())
+            lines.append(f"| {label} | " + " | ".join(cells) + " |")
         lines += ["", f"![sample efficiency]({efficiency})", ""]
+        if paired:
+            selected = [(label, [r.score for r in members if r.score is not None]) for label, members in rows_of
+                        if label in ("PPO", "PPO, better of 2 seeds") or members[0].kind == "relay"]
+            lines += ["Final score of the scored runs (mean over runs, on the scale above): "
+                      + "; ".join(f"{label} {100 * np.mean(scores):.1f}%" for label, scores in selected if scores)
+                      + ".", ""]
+        areas = [(label, [r for r in members if normalized_area(r) is not None]) for label, members in rows_of]
+        if any(members for _, members in areas):
+            lines += ["Area under the normalized learning curve divided by its length (the mean score over training; "
+                      "1.0 = the reference all along). Each cell: mean over runs [95% percentile-bootstrap interval] "
+                      "(runs).", "", "| method | " + " | ".join(envs) + " | all |", "|---|" + "---|" * (len(envs) + 1)]
+            for label, members in areas:
+                cells = [mean_with_interval([normalized_area(r) for r in members if r.env_id == env], seed, reps)
+                         for env in envs]
+                cells.append(mean_with_interval([normalized_area(r) for r in members], seed, reps))
+                lines.append(f"| {label} | " + " | ".join(cells) + " |")
+            lines.append("")
 
     studies = sorted((r for r in runs if r.kind in HPO_METHODS), key=lambda r: (method_order(runs).index(r.label),
                                                                               r.env_id, r.seed))
@@ -1053,7 +1142,8 @@ def write_report(study: Study, args: argparse.Namespace) -> None:
     benchmarks = [b for b in BENCHMARKS if any(r.benchmark == b for r in study.runs)]
     lines = ["# ULTHO report", "",
              f"`python ultho_report.py {' '.join(args.paths)} --out {out} --seed {args.seed} --reps {args.reps}"
-             f"{'' if args.per_run else ' --no-per-run'}`: "
+             f" --solve-threshold {args.solve_threshold:g} --solve-window {args.solve_window}"
+             f"{'' if args.per_run else ' --no-per-run'}{' --allow-missing' if args.allow_missing else ''}`: "
              f"{len(study.runs)} runs ({', '.join(BENCHMARKS[b] for b in benchmarks)}).", ""]
     rows: list[dict] = []
     for benchmark in benchmarks:
@@ -1113,6 +1203,17 @@ def export_data(study: Study, roots: list[str], out: str) -> int:
     return written
 
 
+def ignored_by_git(folder: str) -> list[str]:
+    """The files below ``folder`` that git would leave out of a commit (none outside a git work tree)."""
+    files = [os.path.join(d, name) for d, _, names in os.walk(folder) for name in names]
+    try:
+        result = subprocess.run(["git", "-C", folder, "check-ignore", "--no-index", "--stdin"], capture_output=True,
+                                text=True, input="\n".join(os.path.abspath(f) for f in files))
+    except OSError:  # no git
+        return []
+    return result.stdout.splitlines() if result.returncode == 0 else []
+
+
 def write_scalars_csv(series: dict[str, np.ndarray], path: str) -> int:
     """One row per logged step, one column per tag; float32 values (TensorBoard's) written to round-trip."""
     tags = sorted(series)
@@ -1141,7 +1242,8 @@ def main(argv: list[str] | None = None) -> None:
         prog=PROG, description=__doc__.replace("``", "").split("\n    python")[0],
         epilog="examples:\n  python ultho_report.py runs/ --out report/      # then open report/report.md\n"
                "  python ultho_report.py sweeps/procgen/ runs/my_run --out report/ --seed 1 --no-per-run\n"
-               "  python ultho_report.py runs/sweep-minigrid --out results/minigrid --export-data results/minigrid/data\n"
+               "  python ultho_report.py runs/sweep-minigrid --out results/minigrid \\\n"
+               "      --export-data results/minigrid/data\n"
                "\nUnreadable or missing run files are named in one warning each on stderr and skipped.",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("paths", nargs="+", metavar="PATH",
@@ -1158,6 +1260,8 @@ def main(argv: list[str] | None = None) -> None:
                              "sample-efficiency table (default: 0.9, e.g. MiniGrid return 0.9)")
     parser.add_argument("--solve-window", type=int, default=5, metavar="N",
                         help="logged iterations the running score averages (default: 5)")
+    parser.add_argument("--allow-missing", action="store_true", help="draw a partial report when a sweep, relay or "
+                        "study refers to runs that are not there (default: stop, naming the first one)")
     parser.add_argument("--export-data", metavar="DIR", help="also write a compact copy of the study to DIR "
                         "(summaries, relay and sweep indexes, each run's curves as scalars.csv), enough to redraw "
                         "the report")
@@ -1184,6 +1288,11 @@ def main(argv: list[str] | None = None) -> None:
 
     study = Study()
     study.discover(args.paths)
+    if study.absent and not args.allow_missing:
+        more = f" and {len(study.absent) - 1} more" if len(study.absent) > 1 else ""
+        parser.error(f"missing run {study.absent[0]}{more}; --allow-missing draws a partial report")
+    for line in study.warnings:
+        print(f"{PROG}: warning: {line}", file=sys.stderr)
     if not study.runs and not study.missing:
         parser.error(f"no run found below {', '.join(args.paths)} (no summary.json, relay.json or sweep.json)")
     study.normalize()
@@ -1193,6 +1302,9 @@ def main(argv: list[str] | None = None) -> None:
     if args.export_data:
         size = export_data(study, args.paths, args.export_data)
         print(f"{PROG}: wrote {size / 1e6:.1f} MB of study data to {args.export_data}", file=sys.stderr)
+        if ignored := ignored_by_git(args.export_data):
+            print(f"{PROG}: warning: git ignores {len(ignored)} of the exported files (e.g. {ignored[0]}): a commit "
+                  "would leave them out", file=sys.stderr)
 
 
 if __name__ == "__main__":

@@ -1,15 +1,15 @@
 """This project's scripts against CleanRL's, side by side: whole-process wall time and peak memory.
 
-Each benchmark trains the same number of steps at the paper's settings with CleanRL's script and with ours
-(ULTHO on, and --no-ultho; for ALE and Procgen each also with --precision bf16), alternating all of them in
-every round so that drifting machine load hits all alike. A run is timed from process start to exit (imports,
-environment construction and start-up included) and its peak resident memory is read from the kernel's
-accounting of that process (``os.wait4``). The table gives medians over the rounds and ratios: CleanRL's wall
-time over ours (above 1: ours is faster) and our peak memory over CleanRL's.
+Each benchmark trains the same number of steps at the paper's settings (SAC on DMC: CleanRL's defaults) with
+CleanRL's script and with ours (ULTHO on, and --no-ultho; for ALE and Procgen each also with --precision bf16),
+alternating all of them in every round so that drifting machine load hits all alike. A run is timed from process
+start to exit (imports, environment construction and start-up included) and its peak resident memory is read from
+the kernel's accounting of that process (``os.wait4``). The table gives medians over the rounds and ratios:
+CleanRL's wall time over ours (above 1: ours is faster) and our peak memory over CleanRL's.
 
-CLEANRL_DIR holds the four scripts of CleanRL's ``cleanrl/`` (https://github.com/vwxyzjn/cleanrl; measured with
-commit fe8d8a0), copied flat with ``cleanrl_utils/`` (``__init__.py``, ``atari_wrappers.py``) beside them, kept
-outside this repository and adapted minimally to this project's pinned gymnasium 1.4:
+CLEANRL_DIR holds the five scripts of CleanRL's ``cleanrl/`` (https://github.com/vwxyzjn/cleanrl; measured with
+commit fe8d8a0), copied flat with ``cleanrl_utils/`` (``__init__.py``, ``atari_wrappers.py``, ``buffers.py``)
+beside them, kept outside this repository and adapted minimally to this project's pinned gymnasium 1.4:
 
 - ``ppo.py``: ``import minigrid``, and ``FlattenObservation(ImgObsWrapper(env))`` after ``gym.make`` (MiniGrid's
   image, flattened: the network is the same 64-unit MLP as ours);
@@ -20,19 +20,27 @@ outside this repository and adapted minimally to this project's pinned gymnasium
 - those three: ``SyncVectorEnv(..., autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)`` (the autoreset CleanRL
   was written for; 1.x's default would store a reset as a transition) and the episode-logging loop rewritten
   for 1.x's ``final_info`` (one dict of arrays with an ``_episode`` mask);
-- ``ppo_procgen.py``: unchanged, run with gym 0.23.1 (the gym it was written for; 0.26 breaks its reset).
+- ``ppo_procgen.py``: unchanged, run with gym 0.23.1 (the gym it was written for; 0.26 breaks its reset);
+- ``sac_continuous_action.py``: ``make_env`` builds the task as ``DMCEnv(env_id)``, imported from
+  ``sac_ultho_dmc`` (the suite task with its observation dict flattened, the environment our script steps;
+  this benchmark puts the repository on CleanRL's PYTHONPATH), instead of ``gym.make(env_id)``;
+  ``SyncVectorEnv(..., autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)``; the episode-logging loop
+  rewritten for 1.x's ``final_info``; ``infos["final_obs"]`` for 0.29's ``infos["final_observation"]``.
 
 Both sides run the paper's settings (the flags below). What still differs: CleanRL's ``ppo_atari.py`` sign-clips
 rewards where ours normalizes them, and steps Python wrappers around single games where ours uses ALE's C++
 vector environment; CleanRL's ``ppo_procgen.py`` trains on the full level distribution, so ours gets
 ``--num-levels 0`` here; each side uses its own default torch threads (ours: one for MiniGrid and PyBullet, one
-per core for ALE and Procgen; CleanRL: torch's default, one per core).
+per core for ALE and Procgen, one for SAC; CleanRL: torch's default, one per core). SAC on DMC runs CleanRL's
+defaults on both sides (cheetah-run; 5,000 random steps, then an update per step), so the row measures
+mostly the updates; ours also differs from CleanRL's SAC in what docs/dmc.md lists (the entropy
+coefficient's step reuses the policy loss's log-probabilities).
 
 ``--cleanrl-python`` is the interpreter for CleanRL's scripts (a virtual environment with this project's
 requirements plus opencv-python-headless and gym==0.23.1); ours run with this interpreter.
 
 Usage: python benchmarks/bench_cleanrl.py CLEANRL_DIR [--cleanrl-python PY] [--benchmarks minigrid atari ...]
-       [--rounds 3]
+       [--rounds 3] [--steps N]
 """
 
 import argparse
@@ -56,6 +64,8 @@ class Benchmark:
     cleanrl_args: tuple[str, ...]
     steps: int
     precisions: tuple[str, ...] = ("float32",)  # ours also runs in each other one (--precision), side by side
+    baseline: str = "PPO"  # what our script is with --no-ultho
+    cleanrl_imports_ours: bool = False  # CleanRL's adapted script imports from this repository (PYTHONPATH)
 
 
 # The paper's settings on both sides: CleanRL takes minibatches by count (rollout / minibatch size), anneals the
@@ -84,13 +94,17 @@ BENCHMARKS = {
         "ppo_procgen.py", ("--env-id", "starpilot", "--num-envs", "64", "--num-steps", "256", "--num-minibatches", "8",
                            "--update-epochs", "3", "--learning-rate", "5e-4", "--no-anneal-lr"),
         16_384, ("float32", "bf16")),
+    "dmc": Benchmark(
+        "sac_ultho_dmc.py", ("--env-id", "cheetah-run"),
+        "sac_continuous_action.py", ("--env-id", "cheetah-run"),
+        15_000, baseline="SAC", cleanrl_imports_ours=True),
 }
 
 
-def timed(command: list[str], cwd: str) -> tuple[float, float]:
+def timed(command: list[str], cwd: str, env: dict | None = None) -> tuple[float, float]:
     """(wall seconds, peak resident MB) of one process, start to exit."""
     start = time.perf_counter()
-    process = subprocess.Popen(command, cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    process = subprocess.Popen(command, cwd=cwd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     _, status, usage = os.wait4(process.pid, 0)
     wall = time.perf_counter() - start
     process.returncode = os.waitstatus_to_exitcode(status)
@@ -106,6 +120,7 @@ def main() -> None:
     parser.add_argument("--cleanrl-python", default=sys.executable, help="interpreter for CleanRL's scripts")
     parser.add_argument("--benchmarks", nargs="+", choices=sorted(BENCHMARKS), default=list(BENCHMARKS))
     parser.add_argument("--rounds", type=int, default=3, help="alternating rounds (default 3)")
+    parser.add_argument("--steps", type=int, help="steps per run instead of each benchmark's own (a smoke test)")
     parser.add_argument("--extra", nargs="*", default=[], metavar="FLAG",
                         help="flags added to our runs only, e.g. --extra --torch-threads 1")
     args = parser.parse_args()
@@ -121,12 +136,14 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|---|---|")
     for name in args.benchmarks:
         bench = BENCHMARKS[name]
-        steps = str(bench.steps)
+        steps = str(args.steps or bench.steps)
+        pythonpath = os.pathsep.join(filter(None, [REPO, os.environ.get("PYTHONPATH")]))
+        cleanrl_env = {**os.environ, "PYTHONPATH": pythonpath} if bench.cleanrl_imports_ours else None
         with tempfile.TemporaryDirectory() as scratch:
             configs = {"CleanRL": ([args.cleanrl_python, os.path.join(os.path.abspath(args.cleanrl_dir), bench.cleanrl),
                                     *bench.cleanrl_args, "--total-timesteps", steps, "--seed", "1"], scratch)}
             for precision in bench.precisions:
-                for method, flags in (("ULTHO", []), ("PPO", ["--no-ultho"])):
+                for method, flags in (("ULTHO", []), (bench.baseline, ["--no-ultho"])):
                     label = method if precision == "float32" else f"{method}, {precision}"
                     extra = ["--precision", precision] if precision != "float32" else []
                     configs[label] = ([sys.executable, os.path.join(REPO, bench.ours), *bench.ours_args,
@@ -137,13 +154,13 @@ def main() -> None:
                 for key, (command, cwd) in configs.items():
                     if key != "CleanRL":
                         command = [*command, "--run-name", f"{key.lower().replace(', ', '_')}{round_}"]
-                    results[key].append(timed(command, cwd))
+                    results[key].append(timed(command, cwd, cleanrl_env if key == "CleanRL" else None))
         wall = {key: statistics.median(w for w, _ in runs) for key, runs in results.items()}
         peak = {key: max(m for _, m in runs) for key, runs in results.items()}
         for key in configs:
             if key == "CleanRL":
                 continue
-            print(f"| {name} | {bench.steps:,} | {key} | {wall['CleanRL']:.1f} | {wall[key]:.1f} | "
+            print(f"| {name} | {int(steps):,} | {key} | {wall['CleanRL']:.1f} | {wall[key]:.1f} | "
                   f"{wall['CleanRL'] / wall[key]:.2f}x | {peak['CleanRL']:,.0f} | {peak[key]:,.0f} | "
                   f"{peak[key] / peak['CleanRL']:.2f} |", flush=True)
 

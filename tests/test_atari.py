@@ -118,6 +118,28 @@ def test_killed_and_resumed_run_equals_uninterrupted_run(tmp_path):
     assert len(a["ultho/selected_cluster"]) == 6
 
 
+def test_checkpoint_right_after_a_game_ended_on_a_rollouts_last_step_resumes_exactly(tmp_path):
+    # Without no-op starts a game of Boxing lasts exactly 1785 steps (the clock runs out): with 255-step rollouts
+    # the checkpoint at iteration 7 is written just after every game ended, so the next game has no actions yet.
+    args = ["--env-id", "Boxing", "--noop-max", "0", "--num-envs", "1", "--num-steps", "255", "--total-timesteps",
+            "2040", "--minibatch-size", "255", "--update-epochs", "1", "--ultho-clusters", "minibatch_size=85,255",
+            "vf_coef", "--checkpoint-every", "7", "--eval-episodes", "0", "--quiet", "--runs-dir", str(tmp_path)]
+    run_ok(SCRIPT, *args, "--run-name", "whole")
+    kill_after_first_checkpoint(SCRIPT, str(tmp_path / "killed"), *args, "--run-name", "killed")
+    checkpoint = torch.load(tmp_path / "killed" / "checkpoint.pt", weights_only=False)
+    assert checkpoint["iteration"] == 7 and checkpoint["global_step"] == 1785
+    assert list(checkpoint["games"]["started"]) == [1] and len(checkpoint["games"]["actions"][0]) == 0
+    run_ok(SCRIPT, "--resume", str(tmp_path / "killed"), "--quiet")
+
+    whole, resumed = summary(str(tmp_path / "whole")), summary(str(tmp_path / "killed"))
+    for key in ("global_step", "bandit", "settings_in_force", "final_score", "final_score_episodes"):
+        assert whole[key] == resumed[key], key
+    final_whole = torch.load(tmp_path / "whole" / "checkpoint.pt", weights_only=False)
+    final_resumed = torch.load(tmp_path / "killed" / "checkpoint.pt", weights_only=False)
+    for name, tensor in final_whole["agent"].items():
+        assert torch.equal(tensor, final_resumed["agent"][name]), name
+
+
 def test_bf16_run_killed_and_resumed_continues_in_bf16_and_equals_uninterrupted_run(tmp_path):
     # The resume command leaves --precision out: bf16 must come back from the checkpoint, and bf16's kernels on
     # the CPU must be as repeatable as float32's. Plain PPO, so that the two continuations differ only in precision.

@@ -74,13 +74,16 @@ def test_no_ultho_keeps_settings_fixed_and_logs_no_bandit_tags(tmp_path):
 
 
 def test_killed_and_resumed_run_equals_uninterrupted_run(tmp_path):
-    args = ["--env-id", "MiniGrid-Empty-5x5-v0", "--num-envs", "8", "--num-steps", "64", "--total-timesteps",
-            "6144", "--minibatch-size", "128", "--ultho-clusters", "learning_rate", "minibatch_size=64,128,256",
+    # Empty-5x5 cuts episodes at 100 steps: with 50-step rollouts the first checkpoint (iteration 2) is written
+    # right after episodes ended on the rollout's last step, while other environments are mid-episode.
+    args = ["--env-id", "MiniGrid-Empty-5x5-v0", "--num-envs", "8", "--num-steps", "50", "--total-timesteps",
+            "4800", "--minibatch-size", "80", "--ultho-clusters", "learning_rate", "minibatch_size=40,80,200",
             "vf_coef", "--checkpoint-every", "2", "--eval-episodes", "2", "--quiet", "--runs-dir", str(tmp_path)]
     run_ok(SCRIPT, *args, "--run-name", "whole")
     kill_after_first_checkpoint(SCRIPT, str(tmp_path / "killed"), *args, "--run-name", "killed")
-    interrupted_at = torch.load(tmp_path / "killed" / "checkpoint.pt", weights_only=False)["iteration"]
-    assert interrupted_at < 12 and not (tmp_path / "killed" / "summary.json").exists()
+    checkpoint = torch.load(tmp_path / "killed" / "checkpoint.pt", weights_only=False)
+    assert checkpoint["iteration"] < 12 and not (tmp_path / "killed" / "summary.json").exists()
+    assert checkpoint["next_done"].any() and not checkpoint["next_done"].all()
     run_ok(SCRIPT, "--resume", str(tmp_path / "killed"), "--quiet")
 
     whole, resumed = summary(str(tmp_path / "whole")), summary(str(tmp_path / "killed"))

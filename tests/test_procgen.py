@@ -107,8 +107,10 @@ def test_killed_and_resumed_run_equals_uninterrupted_run(tmp_path):
             "--runs-dir", str(tmp_path)]
     run_ok(SCRIPT, *args, "--run-name", "whole")
     kill_after_first_checkpoint(SCRIPT, str(tmp_path / "killed"), *args, "--run-name", "killed")
-    interrupted_at = torch.load(tmp_path / "killed" / "checkpoint.pt", weights_only=False)["iteration"]
-    assert interrupted_at < 6 and not (tmp_path / "killed" / "summary.json").exists()
+    checkpoint = torch.load(tmp_path / "killed" / "checkpoint.pt", weights_only=False)
+    assert checkpoint["iteration"] < 6 and not (tmp_path / "killed" / "summary.json").exists()
+    # The checkpoint is written right after an episode ended on the rollout's last step (environment 2).
+    assert checkpoint["next_done"].any()
     run_ok(SCRIPT, "--resume", str(tmp_path / "killed"), "--quiet")
 
     whole, resumed = summary(str(tmp_path / "whole")), summary(str(tmp_path / "killed"))

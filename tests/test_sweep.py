@@ -165,6 +165,36 @@ def test_local_sweep_started_again_runs_nothing(local_sweep):
     assert all(r["status"] == "done" and r["attempts"] == 1 for r in index(out)["runs"])
 
 
+def test_sweep_on_a_new_machine_restores_the_exported_runs_and_reruns_only_the_rest(local_sweep, tmp_path):
+    """The committed results of a study are its compact export; a fresh clone has no runs/ folder. With
+    --done-from the exported runs count as done, so only the grid point that was never exported runs again."""
+    out, _ = local_sweep
+    exported = tmp_path / "data"
+    result = run("ultho_report.py", str(out), "--out", str(tmp_path / "report"), "--no-per-run",
+                 "--export-data", str(exported))
+    assert result.returncode == 0, result.stderr
+    ppo = next(r for r in index(out)["runs"] if r["method"] == "ppo")
+    shutil.rmtree(exported / out.name / ppo["path"])  # finished after the last export
+    fresh = tmp_path / out.name  # the same sweep directory name on the new machine, runs/ gone
+    args = ["--methods", "ppo", "ultho", "relay", "--out", str(fresh), "--workers", "2", *TINY]
+    result = run(TOOL, *args[:-len(TINY)], "--done-from", str(exported), *TINY)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert f"2 finished runs restored from {exported}" in result.stdout
+    assert "3 runs, 2 already done, 1 to run" in result.stdout
+    record = {r["method"]: r for r in index(fresh)["runs"]}
+    assert all(r["status"] == "done" for r in record.values())
+    assert record["ppo"]["attempts"] == 1 and events(fresh / record["ppo"]["path"])  # ran here
+    ultho_dir = fresh / record["ultho"]["path"]
+    assert not events(ultho_dir) and (ultho_dir / "scalars.csv").exists()  # restored, not rerun
+    assert summary(str(ultho_dir)) == summary(str(out / record["ultho"]["path"]))
+    with open(fresh / record["relay"]["path"] / "relay.json") as f:
+        assert json.load(f)["status"] == "done"
+    assert not os.path.exists(fresh / "logs" / f"{record['ultho']['name']}.log")
+    # Started again, nothing is restored twice and nothing runs.
+    again = run(TOOL, *args[:-len(TINY)], "--done-from", str(exported), *TINY)
+    assert "0 finished runs restored" in again.stdout and "3 runs, 3 already done, 0 to run" in again.stdout
+
+
 def test_killed_sweep_restarted_finishes_only_what_is_missing(tmp_path):
     out = tmp_path / "s"
     # Eight iterations, a checkpoint after each: the second run is killed between checkpoints.
@@ -277,6 +307,7 @@ BAD_INPUTS = [
     (["--paper", "minigrid", "--", "--ultho-scale", "running"], "--ultho-scale after -- is set by the grid"),
     (["--paper", "minigrid", "--", "--resume", "x"], "--resume after -- is set by the grid"),
     (["--paper", "minigrid", "--", "--init-from", "x"], "--init-from after -- is set by the grid"),
+    (["--paper", "minigrid", "--done-from", "no/such/dir"], "--done-from no/such/dir: no such directory"),
 ]
 
 
