@@ -47,16 +47,16 @@ import warnings
 from dataclasses import dataclass
 from typing import Optional
 
-from relay_ultho import (UsageError, atomic_write_json, check_script_args, flag_values, parse_split_args, read_json,
-                         relative_to, resolve_script, without_flag)
 from ultho_bandit import format_value
+from ultho_runs import (UsageError, atomic_write_json, check_script_args, flag_values, parse_split_args, print_error,
+                        read_json, relative_to, resolve_script, without_flag)
 
 TOOL = "hpo_baselines.py"
 STUDY_FORMAT = 1
 METHODS = ("pbt", "pb2", "random")
 OWNED_FLAGS = ("--seed",)
-"""Script flags the tool sets per trial, on top of relay_ultho's (--no-ultho, --run-name, --runs-dir, --resume,
---init-from)."""
+"""Script flags the tool sets per trial, on top of ultho_runs.OWNED_FLAGS (--no-ultho, --run-name, --runs-dir,
+--resume, --init-from)."""
 SCORE = "score"
 TRIAL_RECORD = "hpo_trial.json"
 CHECKPOINT_RECORD = "hpo_checkpoint.json"
@@ -556,10 +556,10 @@ def main(argv: list[str]) -> int:
             raise UsageError(f"--keep-checkpoints must be >= 0, got {args.keep_checkpoints}")
         study(args, script_args, log=(lambda line: None) if args.quiet else (lambda line: print(line, flush=True)))
     except UsageError as err:
-        print(f"{TOOL}: error: {err}", file=sys.stderr)
+        print_error(TOOL, err)
         return 2
     except StudyFailed as err:
-        print(f"{TOOL}: error: {err}; run the same command again to continue the study", file=sys.stderr)
+        print_error(TOOL, f"{err}; run the same command again to continue the study")
         return 1
     return 0
 

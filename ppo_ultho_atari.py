@@ -13,7 +13,7 @@ paper's "reward normalization: yes"), not sign-clipped. Every return that is log
 unclipped game score of a whole game (all lives).
 
 Network: CleanRL's Nature CNN (three convolutions, a 512-unit layer, linear actor and critic heads), on the
-observation divided by 255, in channels-last memory order (measured faster on the CPU). ``--precision bf16``
+observation divided by 255, in channels-last memory order (faster on the CPU, docs/atari.md). ``--precision bf16``
 runs its convolutions and linear layers under bfloat16 autocast; its outputs, and all of PPO's arithmetic after
 them, stay float32 (docs/precision.md).
 
@@ -72,7 +72,8 @@ HUMAN_NORMALIZATION = {
     "Phoenix": (761.4, 7242.6),
     "Qbert": (163.9, 13455.0),
 }
-"""(random, human) scores of the ALE-5 games (docs/paper.md): human-normalized = (R - random) / (human - random)."""
+"""(random, human) scores of the ALE-5 games (docs/paper.md): human-normalized = (R - random) / (human - random).
+The same as ultho_report.py's ALE_HUMAN (tests/test_reference_scores.py checks; this file stays self-contained)."""
 
 REWARD_CLIP = 10.0
 """Normalized rewards are clipped to [-10, 10], as in CleanRL's normalized-reward PPO scripts."""
@@ -89,8 +90,8 @@ class Args:
     cuda: bool = True
     """if toggled, use CUDA when it is available"""
     torch_threads: int = 0
-    """CPU threads for torch (0: one per core, torch's own default). On an idle 2-core machine two threads
-    make the CNN's update about 1.7x faster than one; set 1 when other jobs share the cores"""
+    """CPU threads for torch (0: one per core, torch's own default); set 1 when other jobs share the cores
+    (docs/atari.md has the measurements)"""
     precision: Literal["float32", "bf16"] = "float32"
     """float32 (the paper's) or bf16: the network's convolutions and linear layers under bfloat16 autocast, on
     the CPU (AVX512-BF16 or AMX) or CUDA; weights, optimizer, log-probabilities, ratio and losses stay float32
@@ -102,7 +103,8 @@ class Args:
 
     # Environment and PPO (paper Appendix B, ALE column)
     env_id: str = "BattleZone"
-    """an ALE game: its name (BattleZone), ROM id (battle_zone), or a Gymnasium id (ALE/BattleZone-v5, BattleZoneNoFrameskip-v4)"""
+    """an ALE game: its name (BattleZone), ROM id (battle_zone), or a Gymnasium id (ALE/BattleZone-v5,
+    BattleZoneNoFrameskip-v4)"""
     total_timesteps: int = 10_000_000
     """total environment steps of the run (agent steps; each is 4 emulator frames)"""
     learning_rate: float = 2.5e-4
@@ -175,8 +177,8 @@ class Args:
     resume: Optional[str] = None
     """run directory to continue to its --total-timesteps; its checkpoint's settings are used"""
     init_from: Optional[str] = None
-    """run directory whose checkpoint this run starts from: network, optimizer state, reward normalization, the games in progress and counters are
-    taken from it, every setting from this command line (docs/hpo_baselines.md)"""
+    """run directory whose checkpoint this run starts from: network, optimizer state, reward normalization, the
+    games in progress and counters are taken from it, every setting from this command line (docs/hpo_baselines.md)"""
     quiet: bool = False
     """print nothing but errors"""
 
@@ -239,7 +241,7 @@ def load_checkpoint(run_dir: str, flag: str) -> dict:
     try:
         checkpoint = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as err:  # noqa: BLE001  (any unreadable file is bad input)
-        raise UsageError(f"{flag} {run_dir}: checkpoint.pt is unreadable ({err.__class__.__name__})")
+        raise UsageError(f"{flag} {run_dir}: checkpoint.pt is unreadable ({err.__class__.__name__})") from None
     if not isinstance(checkpoint, dict) or checkpoint.get("script") != SCRIPT:
         raise UsageError(f"{flag} {run_dir}: checkpoint.pt is not a {SCRIPT} checkpoint")
     if checkpoint.get("format") != CHECKPOINT_FORMAT:
@@ -256,7 +258,8 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
     if args.resume is not None:
         checkpoint = load_checkpoint(args.resume, "--resume")
         resumed = Args(**checkpoint["config"])
-        resumed.resume, resumed.quiet, resumed.cuda, resumed.torch_threads = args.resume, args.quiet, args.cuda, args.torch_threads
+        resumed.resume, resumed.quiet, resumed.cuda, resumed.torch_threads = (args.resume, args.quiet, args.cuda,
+                                                                               args.torch_threads)
         args.__dict__.update(resumed.__dict__)
     elif args.init_from is not None:
         checkpoint = load_checkpoint(args.init_from, "--init-from")
@@ -314,7 +317,8 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
 
 def is_run_of_this_script(run_dir: str) -> bool:
     try:
-        return torch.load(os.path.join(run_dir, "checkpoint.pt"), map_location="cpu", weights_only=False)["script"] == SCRIPT
+        return torch.load(os.path.join(run_dir, "checkpoint.pt"), map_location="cpu",
+                          weights_only=False)["script"] == SCRIPT
     except Exception:  # noqa: BLE001  (missing or foreign: not a run to continue)
         return False
 
@@ -417,7 +421,7 @@ class Agent(nn.Module):
         )
         self.actor = layer_init(nn.Linear(512, num_actions), std=0.01)
         self.critic = layer_init(nn.Linear(512, 1), std=1)
-        # Channels-last convolutions are measured faster on the CPU (see the README's Performance section).
+        # Channels-last convolutions are faster on the CPU (docs/atari.md, Speed).
         self.to(memory_format=torch.channels_last)
 
     def features(self, obs: torch.Tensor) -> torch.Tensor:
@@ -445,7 +449,8 @@ def sample(log_probs: torch.Tensor) -> torch.Tensor:
 
 
 def ppo_loss(agent: Agent, args: Args, obs: torch.Tensor, actions: torch.Tensor, old_logprobs: torch.Tensor,
-             advantages: torch.Tensor, returns: torch.Tensor, old_values: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+             advantages: torch.Tensor, returns: torch.Tensor,
+             old_values: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """PPO's clipped loss on these samples (advantages as the update uses them) and its statistics: policy loss,
     value loss, entropy, old approximate KL, approximate KL, clip fraction."""
     new_log_probs, newvalue = agent(obs)
@@ -572,7 +577,7 @@ def main(args: Args) -> None:
         start_iteration = checkpoint["iteration"] + 1
         global_step = checkpoint["global_step"]
         elapsed_before, ultho_seconds = checkpoint["elapsed"], checkpoint["ultho_seconds"]
-        # Checkpoints from before these were recorded count from here.
+        # A checkpoint without the phase timings starts them from zero.
         rollout_seconds, update_seconds = checkpoint.get("rollout_seconds", 0.0), checkpoint.get("update_seconds", 0.0)
         return_rms.__dict__.update(checkpoint["return_rms"])
         recent_returns.extend(checkpoint["recent_returns"])
@@ -629,7 +634,8 @@ def main(args: Args) -> None:
             "agent": agent.state_dict(), "optimizer": optimizer.state_dict(),
             "bandit": bandit.state_dict() if bandit is not None else None,
             "return_rms": dict(return_rms.__dict__),
-            "games": {"started": games_started, "seeds": seeds, "actions": [np.array(h, dtype=np.uint8) for h in histories],
+            "games": {"started": games_started, "seeds": seeds,
+                      "actions": [np.array(h, dtype=np.uint8) for h in histories],
                       "next_obs": next_obs_np, "next_done": next_done_np, "discounted_return": discounted_return,
                       "return": game_return, "length": game_length},
             "recent_returns": list(recent_returns), "recent_lengths": list(recent_lengths),
@@ -639,7 +645,8 @@ def main(args: Args) -> None:
         })
 
     # Rollout storage: observations stay uint8, the network converts them per batch.
-    obs = torch.zeros((args.num_steps, args.num_envs) + envs.single_observation_space.shape, dtype=torch.uint8, device=device)
+    obs = torch.zeros((args.num_steps, args.num_envs) + envs.single_observation_space.shape, dtype=torch.uint8,
+                      device=device)
     actions = torch.zeros((args.num_steps, args.num_envs), dtype=torch.long, device=device)
     logprobs = torch.zeros((args.num_steps, args.num_envs), device=device)
     values = torch.zeros((args.num_steps, args.num_envs), device=device)
@@ -762,9 +769,11 @@ def main(args: Args) -> None:
         if not all(map(math.isfinite, (pg_mean, v_mean, ent_mean))):
             progress.close()
             writer.close()
-            last = f"the last good checkpoint is {checkpoint_path}" if os.path.exists(checkpoint_path) else "no checkpoint was written"
+            last = (f"the last good checkpoint is {checkpoint_path}" if os.path.exists(checkpoint_path)
+                    else "no checkpoint was written")
             print(f"{SCRIPT}: error: non-finite loss at iteration {iteration} (step {global_step}) with "
-                  f"{', '.join(f'{n}={format_value(getattr(args, n))}' for n in tuned)}; stopped, {last}", file=sys.stderr)
+                  f"{', '.join(f'{n}={format_value(getattr(args, n))}' for n in tuned)}; stopped, {last}",
+                  file=sys.stderr)
             sys.exit(1)
 
         if bandit is not None and args.ultho_utility == "value-after":

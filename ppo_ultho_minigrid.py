@@ -8,7 +8,8 @@ is plain PPO with fixed settings, the paper's baseline.
 Network: CleanRL's PPO MLP on the flattened 7x7x3 egocentric image (147 inputs): separate actor and
 critic, each two 64-unit tanh layers. The image's integer codes (object, colour, state) go in unnormalized,
 as the paper's settings say ("observation normalization: none"). An MLP rather than the usual small CNN
-because on a 2-core CPU the CNN's update costs about 3x as much for no gain on these small grids.
+because the CNN's update costs several times as much on a CPU for no gain on these small grids
+(``docs/minigrid.md``).
 
 Defaults are the paper's MiniGrid settings (Appendix B, Tables 2-3; ``docs/paper.md``).
 
@@ -74,11 +75,10 @@ class Args:
     cuda: bool = True
     """if toggled, use CUDA when it is available"""
     torch_threads: int = 1
-    """CPU threads for torch; one suffices for this small network (on an idle 2-core machine a second changed
-    SPS within run-to-run noise; on shared cores it cost a third)"""
+    """CPU threads for torch; one suffices for this small network (docs/minigrid.md#speed)"""
     fast_obs: bool = True
-    """build the 7x7x3 view with fast_gen_obs, an exact re-implementation of MiniGrid's gen_obs (environment
-    steps about 2.4x faster on a 2-core CPU; a test checks equality); --no-fast-obs uses MiniGrid's own"""
+    """build the 7x7x3 view with fast_gen_obs, an exact and faster re-implementation of MiniGrid's gen_obs (a
+    test checks equality); --no-fast-obs uses MiniGrid's own"""
     run_name: Optional[str] = None
     """name of the run directory under --runs-dir (default: {env_id}__{exp_name}__{seed}__{unix time})"""
     runs_dir: str = "runs"
@@ -214,7 +214,7 @@ def load_checkpoint(run_dir: str, flag: str) -> dict:
     try:
         checkpoint = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as err:  # noqa: BLE001  (any unreadable file is bad input)
-        raise UsageError(f"{flag} {run_dir}: checkpoint.pt is unreadable ({err.__class__.__name__})")
+        raise UsageError(f"{flag} {run_dir}: checkpoint.pt is unreadable ({err.__class__.__name__})") from None
     if not isinstance(checkpoint, dict) or checkpoint.get("script") != SCRIPT:
         raise UsageError(f"{flag} {run_dir}: checkpoint.pt is not a {SCRIPT} checkpoint")
     if checkpoint.get("format") != CHECKPOINT_FORMAT:
@@ -231,7 +231,8 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
     if args.resume is not None:
         checkpoint = load_checkpoint(args.resume, "--resume")
         resumed = Args(**checkpoint["config"])
-        resumed.resume, resumed.quiet, resumed.cuda, resumed.torch_threads = args.resume, args.quiet, args.cuda, args.torch_threads
+        resumed.resume, resumed.quiet, resumed.cuda, resumed.torch_threads = (args.resume, args.quiet, args.cuda,
+                                                                               args.torch_threads)
         args.__dict__.update(resumed.__dict__)
     elif args.init_from is not None:
         checkpoint = load_checkpoint(args.init_from, "--init-from")
@@ -286,7 +287,8 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
 
 def is_run_of_this_script(run_dir: str) -> bool:
     try:
-        return torch.load(os.path.join(run_dir, "checkpoint.pt"), map_location="cpu", weights_only=False)["script"] == SCRIPT
+        return torch.load(os.path.join(run_dir, "checkpoint.pt"), map_location="cpu",
+                          weights_only=False)["script"] == SCRIPT
     except Exception:  # noqa: BLE001  (missing or foreign: not a run to continue)
         return False
 
@@ -335,11 +337,11 @@ def view_layout(view_size: int) -> tuple[tuple[tuple[tuple[int, int], ...], ...]
 
 
 def fast_gen_obs(self: MiniGridEnv) -> dict:
-    """MiniGridEnv.gen_obs, the same observation computed about 3.7x faster (on a 2-core CPU: 40 vs 148 µs).
+    """MiniGridEnv.gen_obs, the same observation computed faster (docs/minigrid.md has the figures).
 
     MiniGrid builds the view as Grid objects: a slice that creates a Wall for every cell beyond the edge, one to
     four rotations that copy all 49 cells through asserting get/set calls, then the occlusion pass and the
-    encoding. At these settings that is about 60% of the whole training step. Here the view is a list read
+    encoding, most of the time of a training step at these settings. Here the view is a list read
     straight from the grid through a precomputed layout, the occlusion pass (Grid.process_vis, same order and
     rules, the object's own see_behind()) runs on that list, and the codes are each object's own encode().
     tests/test_minigrid.py checks equality with MiniGrid's gen_obs over thousands of states of many
@@ -545,7 +547,8 @@ def main(args: Args) -> None:
         })
 
     # Rollout storage: observations stay uint8, the network converts them per batch.
-    obs = torch.zeros((args.num_steps, args.num_envs) + envs.single_observation_space.shape, dtype=torch.uint8, device=device)
+    obs = torch.zeros((args.num_steps, args.num_envs) + envs.single_observation_space.shape, dtype=torch.uint8,
+                      device=device)
     actions = torch.zeros((args.num_steps, args.num_envs), dtype=torch.long, device=device)
     logprobs = torch.zeros((args.num_steps, args.num_envs), device=device)
     values = torch.zeros((args.num_steps, args.num_envs), device=device)
@@ -668,9 +671,11 @@ def main(args: Args) -> None:
         if not all(map(math.isfinite, (pg_mean, v_mean, ent_mean))):
             progress.close()
             writer.close()
-            last = f"the last good checkpoint is {checkpoint_path}" if os.path.exists(checkpoint_path) else "no checkpoint was written"
+            last = (f"the last good checkpoint is {checkpoint_path}" if os.path.exists(checkpoint_path)
+                    else "no checkpoint was written")
             print(f"{SCRIPT}: error: non-finite loss at iteration {iteration} (step {global_step}) with "
-                  f"{', '.join(f'{n}={format_value(getattr(args, n))}' for n in tuned)}; stopped, {last}", file=sys.stderr)
+                  f"{', '.join(f'{n}={format_value(getattr(args, n))}' for n in tuned)}; stopped, {last}",
+                  file=sys.stderr)
             sys.exit(1)
 
         if bandit is not None and args.ultho_utility == "value-after":

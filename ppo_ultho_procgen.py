@@ -72,7 +72,8 @@ EASY_MODE_RANGE = {
     "heist": (3.5, 10), "jumper": (3, 10), "leaper": (3, 10), "maze": (5, 10),
     "miner": (1.5, 13), "ninja": (3.5, 10), "plunder": (4.5, 30), "starpilot": (2.5, 64),
 }
-"""(R_min, R_max) per game in easy mode (Cobbe et al. 2020): normalized score = (R - R_min) / (R_max - R_min)."""
+"""(R_min, R_max) per game in easy mode (Cobbe et al. 2020): normalized score = (R - R_min) / (R_max - R_min).
+The same as ultho_report.py's PROCGEN_EASY (tests/test_reference_scores.py checks; the file stays self-contained)."""
 
 CPU_UPDATE_CHUNK = 512
 """--update-chunk 0 on the CPU: a minibatch of more samples is split into chunks of this many (the IMPALA CNN's
@@ -90,8 +91,8 @@ class Args:
     cuda: bool = True
     """if toggled, use CUDA when it is available"""
     torch_threads: int = 0
-    """CPU threads for torch (0: one per core, torch's own default). On an idle 2-core machine two threads
-    make the CNN's update about 1.7x faster than one; set 1 when other jobs share the cores"""
+    """CPU threads for torch (0: one per core, torch's own default); set 1 when other jobs share the cores
+    (docs/procgen.md has the measurements)"""
     precision: Literal["float32", "bf16"] = "float32"
     """float32 (the paper's) or bf16: the network's convolutions and linear layers under bfloat16 autocast, on
     the CPU (AVX512-BF16 or AMX) or CUDA; weights, optimizer, log-probabilities, ratio and losses stay float32
@@ -185,8 +186,8 @@ class Args:
     resume: Optional[str] = None
     """run directory to continue to its --total-timesteps; its checkpoint's settings are used"""
     init_from: Optional[str] = None
-    """run directory whose checkpoint this run starts from: network, optimizer state, reward normalization, environments and counters are
-    taken from it, every setting from this command line (docs/hpo_baselines.md)"""
+    """run directory whose checkpoint this run starts from: network, optimizer state, reward normalization,
+    environments and counters are taken from it, every setting from this command line (docs/hpo_baselines.md)"""
     quiet: bool = False
     """print nothing but errors"""
 
@@ -249,7 +250,7 @@ def load_checkpoint(run_dir: str, flag: str) -> dict:
     try:
         checkpoint = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as err:  # noqa: BLE001  (any unreadable file is bad input)
-        raise UsageError(f"{flag} {run_dir}: checkpoint.pt is unreadable ({err.__class__.__name__})")
+        raise UsageError(f"{flag} {run_dir}: checkpoint.pt is unreadable ({err.__class__.__name__})") from None
     if not isinstance(checkpoint, dict) or checkpoint.get("script") != SCRIPT:
         raise UsageError(f"{flag} {run_dir}: checkpoint.pt is not a {SCRIPT} checkpoint")
     if checkpoint.get("format") != CHECKPOINT_FORMAT:
@@ -266,7 +267,8 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
     if args.resume is not None:
         checkpoint = load_checkpoint(args.resume, "--resume")
         resumed = Args(**checkpoint["config"])
-        resumed.resume, resumed.quiet, resumed.cuda, resumed.torch_threads = args.resume, args.quiet, args.cuda, args.torch_threads
+        resumed.resume, resumed.quiet, resumed.cuda, resumed.torch_threads = (args.resume, args.quiet, args.cuda,
+                                                                               args.torch_threads)
         args.__dict__.update(resumed.__dict__)
     elif args.init_from is not None:
         checkpoint = load_checkpoint(args.init_from, "--init-from")
@@ -292,7 +294,8 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
     if args.update_chunk < 0:
         raise UsageError(f"--update-chunk must be >= 0 (0: automatic), got {args.update_chunk}")
     if args.start_level + args.num_levels >= 2**31:
-        raise UsageError(f"--start-level {args.start_level} with --num-levels {args.num_levels} exceeds procgen's 31-bit level seeds")
+        raise UsageError(f"--start-level {args.start_level} with --num-levels {args.num_levels} exceeds procgen's "
+                         "31-bit level seeds")
     batch_size = args.num_envs * args.num_steps
     if args.total_timesteps < batch_size:
         raise UsageError(f"--total-timesteps {args.total_timesteps} is less than one rollout ({batch_size} steps)")
@@ -325,7 +328,8 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
 
 def is_run_of_this_script(run_dir: str) -> bool:
     try:
-        return torch.load(os.path.join(run_dir, "checkpoint.pt"), map_location="cpu", weights_only=False)["script"] == SCRIPT
+        return torch.load(os.path.join(run_dir, "checkpoint.pt"), map_location="cpu",
+                          weights_only=False)["script"] == SCRIPT
     except Exception:  # noqa: BLE001  (missing or foreign: not a run to continue)
         return False
 
@@ -383,7 +387,8 @@ def make_envs(args: "Args", num_envs: int, test: bool, seed: int) -> ProcgenVecE
     """Training environments draw levels start_level .. start_level + num_levels - 1; test environments draw
     from the full distribution (num_levels=0)."""
     if test:
-        return ProcgenVecEnv(args.env_id, num_envs, num_levels=0, start_level=0, seed=seed, num_threads=args.env_threads)
+        return ProcgenVecEnv(args.env_id, num_envs, num_levels=0, start_level=0, seed=seed,
+                             num_threads=args.env_threads)
     return ProcgenVecEnv(args.env_id, num_envs, args.num_levels, args.start_level, seed, num_threads=args.env_threads)
 
 
@@ -401,7 +406,8 @@ class RewardNormalizer:
         batch_mean, batch_var, batch_count = self.returns.mean(), self.returns.var(), len(self.returns)
         delta, total = batch_mean - self.mean, self.count + batch_count
         self.mean = self.mean + delta * batch_count / total
-        self.var = (self.var * self.count + batch_var * batch_count + delta**2 * self.count * batch_count / total) / total
+        self.var = (self.var * self.count + batch_var * batch_count
+                    + delta**2 * self.count * batch_count / total) / total
         self.count = total
         return np.clip(reward / np.sqrt(self.var + self.epsilon), -10, 10)
 
@@ -442,8 +448,8 @@ class ConvSequence(nn.Module):
 
 
 class Agent(nn.Module):
-    """CleanRL's IMPALA CNN (Espeholt et al. 2018) with a shared trunk, in channels-last memory format
-    (measured on 2 CPU cores: the update is about 15% faster than channels-first)."""
+    """CleanRL's IMPALA CNN (Espeholt et al. 2018) with a shared trunk, in channels-last memory format, whose
+    update is faster on the CPU than channels-first (docs/procgen.md, Speed)."""
 
     def __init__(self, obs_shape: tuple[int, int, int], num_actions: int, precision: str):
         super().__init__()
@@ -492,7 +498,8 @@ def update_chunk_size(args: Args, device: torch.device) -> int:
 
 
 def ppo_loss(agent: Agent, args: Args, obs: torch.Tensor, actions: torch.Tensor, old_logprobs: torch.Tensor,
-             advantages: torch.Tensor, returns: torch.Tensor, old_values: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+             advantages: torch.Tensor, returns: torch.Tensor,
+             old_values: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """PPO's clipped loss on these samples (advantages as the update uses them) and its statistics: policy loss,
     value loss, entropy, old approximate KL, approximate KL, clip fraction."""
     new_log_probs, newvalue = agent(obs)
@@ -633,7 +640,7 @@ def main(args: Args) -> None:
         start_iteration = checkpoint["iteration"] + 1
         global_step = checkpoint["global_step"]
         elapsed_before, ultho_seconds = checkpoint["elapsed"], checkpoint["ultho_seconds"]
-        # Checkpoints from before these were recorded count from here.
+        # A checkpoint without the phase timings starts them from zero.
         rollout_seconds, update_seconds = checkpoint.get("rollout_seconds", 0.0), checkpoint.get("update_seconds", 0.0)
         episode_return, episode_length = checkpoint["episode_return"], checkpoint["episode_length"]
         recent_returns.extend(checkpoint["recent_returns"])
@@ -662,7 +669,8 @@ def main(args: Args) -> None:
         atomic_save_torch(checkpoint_path, {
             "script": SCRIPT, "format": CHECKPOINT_FORMAT, "config": config,
             "settings": {name: getattr(args, name) for name in TUNABLE},
-            "iteration": iteration, "global_step": global_step, "elapsed": elapsed_before + time.time() - start_time - eval_seconds,
+            "iteration": iteration, "global_step": global_step,
+            "elapsed": elapsed_before + time.time() - start_time - eval_seconds,
             "ultho_seconds": ultho_seconds, "rollout_seconds": rollout_seconds, "update_seconds": update_seconds,
             "agent": agent.state_dict(), "optimizer": optimizer.state_dict(),
             "bandit": bandit.state_dict() if bandit is not None else None,
@@ -791,9 +799,11 @@ def main(args: Args) -> None:
         if not all(map(math.isfinite, (pg_mean, v_mean, ent_mean))):
             progress.close()
             writer.close()
-            last = f"the last good checkpoint is {checkpoint_path}" if os.path.exists(checkpoint_path) else "no checkpoint was written"
+            last = (f"the last good checkpoint is {checkpoint_path}" if os.path.exists(checkpoint_path)
+                    else "no checkpoint was written")
             print(f"{SCRIPT}: error: non-finite loss at iteration {iteration} (step {global_step}) with "
-                  f"{', '.join(f'{n}={format_value(getattr(args, n))}' for n in tuned)}; stopped, {last}", file=sys.stderr)
+                  f"{', '.join(f'{n}={format_value(getattr(args, n))}' for n in tuned)}; stopped, {last}",
+                  file=sys.stderr)
             sys.exit(1)
 
         if bandit is not None and args.ultho_utility == "value-after":
@@ -836,7 +846,8 @@ def main(args: Args) -> None:
             tick = time.time()
             test_returns, _ = evaluate(agent, args, device, iteration)
             writer.add_scalar("eval/test_return", float(np.mean(test_returns)), global_step)
-            writer.add_scalar("eval/normalized_test_return", normalized_score(args.env_id, float(np.mean(test_returns))), global_step)
+            writer.add_scalar("eval/normalized_test_return",
+                              normalized_score(args.env_id, float(np.mean(test_returns))), global_step)
             eval_seconds += time.time() - tick
 
         recent = f"{np.mean(recent_returns):.3g}" if recent_returns else "-"
@@ -853,7 +864,8 @@ def main(args: Args) -> None:
     envs.close()
 
     wall_time = elapsed_before + time.time() - start_time - eval_seconds
-    eval_returns, eval_level_seeds = evaluate(agent, args, device, num_iterations) if args.eval_episodes > 0 else ([], [])
+    eval_returns, eval_level_seeds = (evaluate(agent, args, device, num_iterations) if args.eval_episodes > 0
+                                      else ([], []))
     train_score = float(np.mean(recent_returns)) if recent_returns else None
     test_score = float(np.mean(eval_returns)) if eval_returns else None
     if eval_returns:

@@ -183,8 +183,8 @@ class Args:
     resume: Optional[str] = None
     """run directory to continue to its --total-timesteps; its checkpoint's settings are used"""
     init_from: Optional[str] = None
-    """run directory whose checkpoint this run starts from: network, optimizer state, normalization statistics, environments and counters are
-    taken from it, every setting from this command line (docs/hpo_baselines.md)"""
+    """run directory whose checkpoint this run starts from: network, optimizer state, normalization statistics,
+    environments and counters are taken from it, every setting from this command line (docs/hpo_baselines.md)"""
     quiet: bool = False
     """print nothing but errors"""
 
@@ -264,7 +264,8 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
     if args.resume is not None:
         checkpoint = load_checkpoint(args.resume, "--resume")
         resumed = Args(**checkpoint["config"])
-        resumed.resume, resumed.quiet, resumed.cuda, resumed.torch_threads = args.resume, args.quiet, args.cuda, args.torch_threads
+        resumed.resume, resumed.quiet, resumed.cuda, resumed.torch_threads = (args.resume, args.quiet, args.cuda,
+                                                                               args.torch_threads)
         args.__dict__.update(resumed.__dict__)
     elif args.init_from is not None:
         checkpoint = load_checkpoint(args.init_from, "--init-from")
@@ -314,7 +315,8 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
 
 def is_run_of_this_script(run_dir: str) -> bool:
     try:
-        return torch.load(os.path.join(run_dir, "checkpoint.pt"), map_location="cpu", weights_only=False)["script"] == SCRIPT
+        return torch.load(os.path.join(run_dir, "checkpoint.pt"), map_location="cpu",
+                          weights_only=False)["script"] == SCRIPT
     except Exception:  # noqa: BLE001  (missing or foreign: not a run to continue)
         return False
 
@@ -432,7 +434,8 @@ class RunningMeanStd:
         delta = batch_mean - self.mean
         total = self.count + batch_count
         self.mean = self.mean + delta * batch_count / total
-        self.var = (self.var * self.count + batch_var * batch_count + np.square(delta) * self.count * batch_count / total) / total
+        self.var = (self.var * self.count + batch_var * batch_count
+                    + np.square(delta) * self.count * batch_count / total) / total
         self.count = total
 
     def state_dict(self) -> dict:
@@ -534,7 +537,8 @@ def evaluate(agent: Agent, args: Args, device: torch.device, obs_rms: RunningMea
         n = min(args.eval_episodes - len(returns), 16)
         envs = [make_env(args.env_id) for _ in range(n)]
         low, high = envs[0].action_space.low, envs[0].action_space.high
-        raw_obs = np.stack([env.reset(seed=episode_seed(args.seed, 1, len(returns) + k))[0] for k, env in enumerate(envs)])
+        raw_obs = np.stack([env.reset(seed=episode_seed(args.seed, 1, len(returns) + k))[0]
+                            for k, env in enumerate(envs)])
         total, running = np.zeros(n), np.ones(n, dtype=bool)
         while running.any():
             with torch.no_grad():
@@ -786,9 +790,11 @@ def main(args: Args) -> None:
         if not all(map(math.isfinite, (pg_mean, v_mean, ent_mean))):
             progress.close()
             writer.close()
-            last = f"the last good checkpoint is {checkpoint_path}" if os.path.exists(checkpoint_path) else "no checkpoint was written"
+            last = (f"the last good checkpoint is {checkpoint_path}" if os.path.exists(checkpoint_path)
+                    else "no checkpoint was written")
             print(f"{SCRIPT}: error: non-finite loss at iteration {iteration} (step {global_step}) with "
-                  f"{', '.join(f'{n}={format_value(getattr(args, n))}' for n in tuned)}; stopped, {last}", file=sys.stderr)
+                  f"{', '.join(f'{n}={format_value(getattr(args, n))}' for n in tuned)}; stopped, {last}",
+                  file=sys.stderr)
             sys.exit(1)
 
         if bandit is not None and args.ultho_utility == "value-after":

@@ -10,146 +10,23 @@ records all of it and is rewritten atomically as the runs finish.
 
 The tool is restartable: killed at any point and started again with the same arguments, it skips every run
 that has its ``summary.json``, resumes an interrupted one from its ``checkpoint.pt`` and starts afresh one
-that was killed before its first checkpoint.
-
-This module also holds what ``sweep.py`` shares with it: the state of a run directory, running a script
-to completion with bounded retries, and atomic JSON writes.
+that was killed before its first checkpoint (the run-directory conventions of ``ultho_runs.py``).
 """
 
 import argparse
-import contextlib
 import hashlib
-import io
 import json
 import os
 import shutil
-import subprocess
 import sys
-from typing import Callable, Literal, Optional, Sequence, TextIO
+from typing import Callable, Optional, Sequence, TextIO
 
 from ultho_bandit import clusters_of_interest, format_value
+from ultho_runs import (RunFailed, UsageError, atomic_write_json, check_script_args, complete_run, flag_values,
+                        parse_split_args, print_error, read_json, relative_to, resolve_script, without_flag)
 
 TOOL = "relay_ultho.py"
 RELAY_FORMAT = 1
-OWNED_FLAGS = ("--no-ultho", "--run-name", "--runs-dir", "--resume", "--init-from")
-"""Script flags the tools set themselves; a user passing one would break the resume logic."""
-
-RunState = Literal["done", "resumable", "fresh"]
-
-
-class UsageError(Exception):
-    """Bad input: one line on stderr, exit status 2, nothing started."""
-
-
-class RunFailed(Exception):
-    """A run that did not finish within its retries: the script's last exit status, processes started."""
-
-    def __init__(self, message: str, exit_status: int, attempts: int):
-        super().__init__(message)
-        self.exit_status, self.attempts = exit_status, attempts
-
-
-def atomic_write_json(path: str, obj: dict) -> None:
-    """Readers never see a half-written file: write a sibling, fsync, rename over."""
-    tmp = f"{path}.tmp"
-    with open(tmp, "w") as f:
-        f.write(json.dumps(obj, indent=2, allow_nan=False) + "\n")
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
-def read_json(path: str) -> Optional[dict]:
-    try:
-        with open(path) as f:
-            return json.load(f)
-    except FileNotFoundError:
-        return None
-
-
-def run_state(run_dir: str) -> RunState:
-    """done: summary.json exists; resumable: checkpoint.pt but no summary; fresh: neither (never started,
-    or killed before its first checkpoint, so nothing in it is worth keeping)."""
-    if os.path.isfile(os.path.join(run_dir, "summary.json")):
-        return "done"
-    if os.path.isfile(os.path.join(run_dir, "checkpoint.pt")):
-        return "resumable"
-    return "fresh"
-
-
-def flag_values(args: list[str], flag: str) -> Optional[list[str]]:
-    """The values of the last ``flag`` in a script's argument list (``--flag a b`` or ``--flag=a``), or None."""
-    found = None
-    for k, token in enumerate(args):
-        if token == flag:
-            found = []
-            for value in args[k + 1:]:
-                if value.startswith("--"):
-                    break
-                found.append(value)
-        elif token.startswith(flag + "="):
-            found = [token[len(flag) + 1:]]
-    return found
-
-
-def without_flag(args: list[str], flag: str) -> list[str]:
-    """``args`` with every ``flag`` and its values removed."""
-    out, skipping = [], False
-    for token in args:
-        if token == flag:
-            skipping = True
-        elif token.startswith(flag + "="):
-            skipping = False
-        elif skipping and not token.startswith("--"):
-            continue
-        else:
-            skipping = False
-            out.append(token)
-    return out
-
-
-def check_script_args(args: list[str]) -> None:
-    for token in args:
-        for flag in OWNED_FLAGS:
-            if token == flag or token.startswith(flag + "="):
-                raise UsageError(f"{flag} is set by the tool itself; remove it from the arguments after --")
-
-
-def resolve_script(script: str) -> str:
-    """A script path as given, else the file of that name next to this tool; absolute."""
-    for candidate in (script, os.path.join(os.path.dirname(os.path.abspath(__file__)), script)):
-        if os.path.isfile(candidate):
-            return os.path.abspath(candidate)
-    raise UsageError(f"script {script}: no such file")
-
-
-def script_command(script_path: str, args: list[str], run_dir: str, resume: bool) -> list[str]:
-    """The command that starts ``run_dir`` afresh, or continues it from its checkpoint."""
-    place = ["--resume", run_dir] if resume else ["--runs-dir", os.path.dirname(run_dir) or ".",
-                                                  "--run-name", os.path.basename(run_dir)]
-    return [sys.executable, script_path, *args, *place]
-
-
-def complete_run(script_path: str, args: list[str], run_dir: str, max_retries: int,
-                 output: Optional[TextIO] = None, log: Callable[[str], None] = lambda line: None) -> tuple[dict, int]:
-    """Brings ``run_dir`` to done and returns (its summary, processes started). A run already done starts
-    nothing; an interrupted or failed one continues from its checkpoint (``--resume``), at most
-    ``max_retries`` times after the first attempt. A script's bad-input exit (2) is not retried."""
-    attempts, status = 0, None
-    while True:
-        state = run_state(run_dir)
-        if state == "done":
-            return read_json(os.path.join(run_dir, "summary.json")), attempts
-        if attempts > max_retries:
-            raise RunFailed(f"{run_dir} failed {attempts} time(s), last exit status {status}", status, attempts)
-        if state == "fresh" and os.path.exists(run_dir):
-            shutil.rmtree(run_dir)
-        command = script_command(script_path, args, run_dir, resume=state == "resumable")
-        log(("resuming " if state == "resumable" else "starting ") + " ".join(command[1:]))
-        attempts += 1
-        status = subprocess.run(command, stdout=output, stderr=output).returncode
-        if status == 2:
-            raise RunFailed(f"{os.path.basename(script_path)} refused the arguments for {run_dir}", 2, attempts)
 
 
 def cluster_item(cluster: str, user_items: Optional[list[str]], search_space: dict[str, list]) -> str:
@@ -169,12 +46,6 @@ def default_relay_dir(script: str, script_args: list[str], from_run: Optional[st
     return os.path.join("runs", f"relay__{stem}__{env}__{seed}__{hashlib.sha1(key.encode()).hexdigest()[:8]}")
 
 
-def relative_to(path: str, base: str) -> str:
-    """``path`` relative to ``base`` when inside it, else absolute (the relay.json convention)."""
-    path, base = os.path.abspath(path), os.path.abspath(base)
-    return os.path.relpath(path, base) if os.path.commonpath([path, base]) == base else path
-
-
 def checked_full_summary(summary: dict, where: str) -> tuple[str, str]:
     """(COI, NOI) of a finished full ULTHO run; refuses a run that cannot seed a relay."""
     bandit = summary.get("bandit")
@@ -186,8 +57,8 @@ def checked_full_summary(summary: dict, where: str) -> tuple[str, str]:
     if sum(bandit["selections"].values()) == 0:
         raise UsageError(f"{where} credited no selection (selections {bandit['selections']}): it says nothing "
                          "about its clusters; give it more than one iteration")
-    # Recomputed rather than read, so that full runs summarised before the NOI rule took "the least-selected
-    # other cluster" still get two different clusters.
+    # Recomputed from the selections rather than read: clusters_of_interest always gives two different
+    # clusters, which a summary's stored coi and noi need not be.
     return clusters_of_interest(bandit["selections"])
 
 
@@ -294,34 +165,21 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
         epilog="examples:\n"
                "  python relay_ultho.py ppo_ultho_procgen.py -- --env-id starpilot --seed 1\n"
                "  python relay_ultho.py ppo_ultho_minigrid.py --from runs/<a finished ULTHO run>\n"
-               "  python relay_ultho.py ppo_ultho_minigrid.py --relay-dir runs/relay-doorkey -- --ultho-c 1 --ultho-window 50\n"
+               "  python relay_ultho.py ppo_ultho_minigrid.py --relay-dir runs/relay-doorkey -- "
+               "--ultho-c 1 --ultho-window 50\n"
                "\nThe tool sets the script's --runs-dir, --run-name and --resume itself; --no-ultho and --init-from "
                "are refused.",
     )
     parser.add_argument("script", help="the training script, e.g. ppo_ultho_minigrid.py")
     parser.add_argument("--from", dest="from_run", metavar="RUN_DIR",
-                        help="reuse this finished full ULTHO run instead of starting one (its env id and seed are used)")
+                        help="reuse this finished full ULTHO run instead of starting one (its env id and seed are "
+                             "used)")
     parser.add_argument("--relay-dir", metavar="DIR", help="where the runs and relay.json go (default: "
                         "runs/relay__<script>__<env>__<seed>__<hash of the arguments>)")
     parser.add_argument("--max-retries", type=int, default=2, metavar="N",
                         help="times a failed or interrupted run is resumed from its checkpoint (default: 2)")
     parser.add_argument("--quiet", action="store_true", help="print nothing but errors (also passed to the script)")
     return parse_split_args(parser, argv)
-
-
-def parse_split_args(parser: argparse.ArgumentParser, argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
-    """(the tool's options before ``--``, the script's arguments after it). argparse's usage-and-message
-    error becomes a UsageError holding the message alone, for the one-line convention."""
-    split = argv.index("--") if "--" in argv else len(argv)
-    err = io.StringIO()
-    try:
-        with contextlib.redirect_stderr(err):
-            return parser.parse_args(argv[:split]), argv[split + 1:]
-    except SystemExit as exit_:
-        if exit_.code in (0, None):
-            raise
-        lines = err.getvalue().strip().splitlines()
-        raise UsageError(lines[-1].split("error: ", 1)[-1] if lines else "invalid arguments") from None
 
 
 def main(argv: list[str]) -> int:
@@ -332,11 +190,11 @@ def main(argv: list[str]) -> int:
               run_flags=["--quiet"] if args.quiet else [],
               log=(lambda line: None) if args.quiet else (lambda line: print(line, flush=True)))
     except UsageError as err:
-        print(f"{TOOL}: error: {err}", file=sys.stderr)
+        print_error(TOOL, err)
         return 2
     except RunFailed as err:
         if err.exit_status != 2:  # with 2 the script has printed the one line naming the bad argument
-            print(f"{TOOL}: error: {err}; run the same command again to resume it", file=sys.stderr)
+            print_error(TOOL, f"{err}; run the same command again to resume it")
         return 2 if err.exit_status == 2 else 1
     return 0
 

@@ -823,7 +823,7 @@ def load_checkpoint(run_dir: str, flag: str) -> dict:
     try:
         checkpoint = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as err:  # noqa: BLE001  (any unreadable file is bad input)
-        raise UsageError(f"{flag} {run_dir}: checkpoint.pt is unreadable ({err.__class__.__name__})")
+        raise UsageError(f"{flag} {run_dir}: checkpoint.pt is unreadable ({err.__class__.__name__})") from None
     if not isinstance(checkpoint, dict) or checkpoint.get("script") != SCRIPT:
         raise UsageError(f"{flag} {run_dir}: checkpoint.pt is not a {SCRIPT} checkpoint")
     if checkpoint.get("format") != CHECKPOINT_FORMAT:
@@ -840,7 +840,8 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
     if args.resume is not None:
         checkpoint = load_checkpoint(args.resume, "--resume")
         resumed = Args(**checkpoint["config"])
-        resumed.resume, resumed.quiet, resumed.cuda, resumed.torch_threads = args.resume, args.quiet, args.cuda, args.torch_threads
+        resumed.resume, resumed.quiet, resumed.cuda = args.resume, args.quiet, args.cuda
+        resumed.torch_threads = args.torch_threads
         args.__dict__.update(resumed.__dict__)
     elif args.init_from is not None:
         checkpoint = load_checkpoint(args.init_from, "--init-from")
@@ -893,7 +894,8 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
 
 def is_run_of_this_script(run_dir: str) -> bool:
     try:
-        return torch.load(os.path.join(run_dir, "checkpoint.pt"), map_location="cpu", weights_only=False)["script"] == SCRIPT
+        checkpoint = torch.load(os.path.join(run_dir, "checkpoint.pt"), map_location="cpu", weights_only=False)
+        return checkpoint["script"] == SCRIPT
     except Exception:  # noqa: BLE001  (missing or foreign: not a run to continue)
         return False
 
@@ -924,7 +926,8 @@ def stop_non_finite(what: str, iteration: int, global_step: int, args: Args, tun
     """Exit status 1 with the iteration and the settings in force; the last checkpoint stays as it was."""
     progress.close()
     writer.close()
-    last = f"the last good checkpoint is {checkpoint_path}" if os.path.exists(checkpoint_path) else "no checkpoint was written"
+    last = (f"the last good checkpoint is {checkpoint_path}" if os.path.exists(checkpoint_path)
+            else "no checkpoint was written")
     print(f"{SCRIPT}: error: non-finite {what} at iteration {iteration} (step {global_step}) with "
           f"{', '.join(f'{n}={format_value(getattr(args, n))}' for n in tuned)}; stopped, {last}", file=sys.stderr)
     sys.exit(1)

@@ -7,8 +7,8 @@ names the same runs. Started again, a sweep skips every run that has its ``summa
 ``relay.json`` with status done), resumes interrupted or failed runs from their checkpoints with a bounded
 number of retries, and starts afresh only what never checkpointed. ``--done-from DIR`` also counts as done
 every run whose compact copy (``ultho_report.py --export-data DIR``, e.g. committed results) is in DIR: it is
-restored from there, so a fresh clone on a new machine reruns only what had not been exported. ``<out>/sweep.json`` maps every run to
-its grid point and status; ``<out>/logs/<run>.log`` holds each run's output.
+restored from there, so a fresh clone on a new machine reruns only what had not been exported.
+``<out>/sweep.json`` maps every run to its grid point and status; ``<out>/logs/<run>.log`` holds each run's output.
 
 Runs go to local processes (``--workers`` at a time) or, with ``--ray-address``, as tasks to an existing Ray
 cluster, which places them on its nodes by the resources each asks for.
@@ -28,9 +28,9 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Optional
 
-from relay_ultho import (RunFailed, UsageError, atomic_write_json, complete_run, parse_split_args, read_json,
-                         resolve_script, run_state, script_command)
 from ultho_bandit import CREDITS, SCALES, STRATEGIES, format_value
+from ultho_runs import (RunFailed, UsageError, atomic_write_json, complete_run, parse_split_args, print_error,
+                        read_json, resolve_script, run_state, script_command)
 
 TOOL = "sweep.py"
 SWEEP_FORMAT = 1
@@ -50,8 +50,8 @@ class Preset:
     total_timesteps: int
     """the paper's budget per run (docs/paper.md, Table 3)"""
     measured_sps: float
-    """single-run steps per second, ULTHO on, as measured in the README (CPU for MiniGrid and PyBullet, one
-    H100 for ALE and Procgen), for the compute estimate"""
+    """single-run steps per second, ULTHO on, for the compute estimate: the Speed sections of docs/minigrid.md
+    and docs/pybullet.md (a 2-core CPU) and docs/performance.md#gpu (one H100, for ALE and Procgen)"""
 
 
 PROCGEN_GAMES = ("bigfish", "bossfight", "caveflyer", "chaser", "climber", "coinrun", "dodgeball", "fruitbot",
@@ -477,7 +477,7 @@ def main(argv: list[str]) -> int:
         finally:
             executor.close()
     except UsageError as err:
-        print(f"{TOOL}: error: {err}", file=sys.stderr)
+        print_error(TOOL, err)
         return 2
 
 

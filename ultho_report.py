@@ -34,18 +34,20 @@ import re
 import shutil
 import subprocess
 import sys
-from collections import Counter, defaultdict
+from collections import defaultdict
 from dataclasses import dataclass, field
 
 import matplotlib
 
 matplotlib.use("Agg")  # headless: figures go to files only
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.ticker import EngFormatter  # noqa: E402
-from tensorboard.backend.event_processing.event_accumulator import EventAccumulator  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.ticker import EngFormatter
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-PROG = "ultho_report"
+from ultho_runs import print_error
+
+PROG = "ultho_report.py"
 
 PROCGEN_EASY = {
     "bigfish": (1, 40), "bossfight": (0.5, 13), "caveflyer": (3.5, 12), "chaser": (0.5, 13),
@@ -53,13 +55,13 @@ PROCGEN_EASY = {
     "heist": (3.5, 10), "jumper": (3, 10), "leaper": (3, 10), "maze": (5, 10), "miner": (1.5, 13),
     "ninja": (3.5, 10), "plunder": (4.5, 30), "starpilot": (2.5, 64),
 }
-"""Procgen easy-mode (R_min, R_max), Cobbe et al. 2020 (docs/paper.md)."""
+"""Procgen easy-mode (R_min, R_max), Cobbe et al. 2020 (docs/paper.md; ppo_ultho_procgen.py keeps a copy)."""
 
 ALE_HUMAN = {
     "BattleZone": (2360.0, 37187.5), "DoubleDunk": (-18.6, -16.4), "NameThisGame": (2292.3, 8049.0),
     "Phoenix": (761.4, 7242.6), "Qbert": (163.9, 13455.0),
 }
-"""ALE (random, human) scores for human normalization (docs/paper.md)."""
+"""ALE (random, human) scores for human normalization (docs/paper.md; ppo_ultho_atari.py keeps a copy)."""
 
 PYBULLET_REFERENCE = {
     "AntBulletEnv": (362.6, 2865.9), "HalfCheetahBulletEnv": (-1268.9, 2924.7),
@@ -333,7 +335,8 @@ class Study:
             return
         try:
             if study["status"] != "done":
-                self.missing.append(f"study `{directory}` ({study['method']}, seed {study['seed']}) is {study['status']}")
+                self.missing.append(
+                    f"study `{directory}` ({study['method']}, seed {study['seed']}) is {study['status']}")
                 return
             method, seed, budget = str(study["method"]), int(study["seed"]), int(study["budget"]["total_steps"])
             if method not in HPO_METHODS:
@@ -441,7 +444,7 @@ class Study:
 
 
 def variant_of(bandit: dict) -> str:
-    """strategy:credit:scale of a summary's bandit; summaries from before the variants are the paper's."""
+    """strategy:credit:scale of a summary's bandit; a summary that names none is the paper's bandit."""
     return ":".join(str(bandit.get(key, default)) for key, default in zip(("strategy", "credit", "scale"),
                                                                           PAPER_VARIANT.split(":")))
 
@@ -747,7 +750,7 @@ def efficiency_figure(runs: list[Run], benchmark: str, colors: dict, threshold: 
             shares = [0.0, *(np.arange(1, len(reached) + 1) / len(members)), len(reached) / len(members)]
             panel.step(steps, 100 * np.array(shares), where="post", color=colors[label], label=label)
         panel.set_title(env_id, fontsize=10)
-        panel.set_ylabel(f"runs solved (%)")
+        panel.set_ylabel("runs solved (%)")
         panel.set_ylim(-3, 103)
         steps_axis(panel)
         panel.grid(alpha=0.3)
@@ -999,7 +1002,8 @@ def benchmark_section(study: Study, benchmark: str, args: argparse.Namespace, ro
               + "Also in [aggregate.csv](aggregate.csv).", ""]
     for group_envs, group_methods in coverage_groups(runs, methods):
         lines += [f"Over {len(group_envs)} environment{'s' * (len(group_envs) > 1)}: {', '.join(group_envs)}.", "",
-                  "| method | environments | runs | mean (%) [95% CI] | IQM (%) [95% CI] | budget per run or study (steps) |",
+                  "| method | environments | runs | mean (%) [95% CI] | IQM (%) [95% CI] "
+                  "| budget per run or study (steps) |",
                   "|---|---|---|---|---|---|"]
         for label in group_methods:
             members = [r for r in runs if r.label == label]
@@ -1232,15 +1236,17 @@ def write_scalars_csv(series: dict[str, np.ndarray], path: str) -> int:
 
 class OneLineParser(argparse.ArgumentParser):
     def error(self, message: str) -> None:
-        self.exit(2, f"{PROG}: error: {message}\n")
+        print_error(PROG, message)
+        self.exit(2)
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = OneLineParser(
-        prog="ultho_report.py", description=__doc__.replace("``", "").split("\n    python")[0],
+        prog=PROG, description=__doc__.replace("``", "").split("\n    python")[0],
         epilog="examples:\n  python ultho_report.py runs/ --out report/      # then open report/report.md\n"
                "  python ultho_report.py sweeps/procgen/ runs/my_run --out report/ --seed 1 --no-per-run\n"
-               "  python ultho_report.py runs/sweep-minigrid --out results/minigrid --export-data results/minigrid/data\n"
+               "  python ultho_report.py runs/sweep-minigrid --out results/minigrid \\\n"
+               "      --export-data results/minigrid/data\n"
                "\nUnreadable or missing run files are named in one warning each on stderr and skipped.",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("paths", nargs="+", metavar="PATH",
@@ -1251,7 +1257,7 @@ def main(argv: list[str] | None = None) -> None:
                         "intervals (default: 0)")
     parser.add_argument("--reps", type=int, default=50_000, help="bootstrap resamples (default: 50000, as rliable)")
     parser.add_argument("--no-per-run", dest="per_run", action="store_false", help="skip the per-run decision "
-                        "figures (one PNG per ULTHO run, about a second each; the aggregated ones stay)")
+                        "figures (one PNG per ULTHO run; the aggregated ones stay)")
     parser.add_argument("--solve-threshold", type=float, default=0.9, metavar="SCORE",
                         help="the score (on the aggregate table's scale) a run must reach to count as solved in the "
                              "sample-efficiency table (default: 0.9, e.g. MiniGrid return 0.9)")

@@ -21,10 +21,11 @@
 At the end of every rollout, before SB3 runs ``train()`` on it, the callback credits the previous choice
 with the rollout's mean value estimate (``utility="return"``: its mean GAE return), lets the bandit
 (``ultho_bandit.ULTHO``; extra keyword arguments such as ``strategy``, ``credit`` or ``scale`` go to it) select
-one cluster and one value, and puts that value in force for the coming ``train()``. Every other setting keeps the value it had. Clusters: ``learning_rate``, ``batch_size``,
-``n_epochs``, ``vf_coef``, ``ent_coef``, ``clip_range``, ``max_grad_norm``, ``gae_lambda``; A2C has no
-``batch_size``, ``n_epochs`` or ``clip_range``. The bandit's ``scalars()``, the credit and the settings in
-force (``hparams/<name>``) go through SB3's logger, so they appear in the TensorBoard run SB3 writes.
+one cluster and one value, and puts that value in force for the coming ``train()``. Every other setting keeps
+the value it had. Clusters: ``learning_rate``, ``batch_size``, ``n_epochs``, ``vf_coef``, ``ent_coef``,
+``clip_range``, ``max_grad_norm``, ``gae_lambda``; A2C has no ``batch_size``, ``n_epochs`` or ``clip_range``.
+The bandit's ``scalars()``, the credit and the settings in force (``hparams/<name>``) go through SB3's logger, so
+they appear in the TensorBoard run SB3 writes.
 
 ``docs/sb3.md`` explains what is credited when, how each setting is put in force (SB3 resets the learning
 rate and the clip range from schedules in every ``train()``), saving and resuming, and the callback's cost.
@@ -51,7 +52,6 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.utils import FloatSchedule, update_learning_rate
 
-from relay_ultho import atomic_write_json
 from ultho_bandit import ULTHO, Number, format_value
 
 STATE_FORMAT = 1
@@ -105,6 +105,17 @@ def latest_checkpoint(save_path: str | os.PathLike) -> str | None:
         if step.isdigit() and os.path.exists(base + ".zip"):
             found.append((int(step), base))
     return max(found)[1] if found else None
+
+
+def _atomic_write_json(path: str, obj: dict) -> None:
+    # A kill mid-save must leave the previous state readable: write a sibling, fsync, rename over. (The tools'
+    # ultho_runs.atomic_write_json does the same; this module installs on its own, so it keeps a copy.)
+    tmp = f"{path}.tmp"
+    with open(tmp, "w") as f:
+        f.write(json.dumps(obj, indent=2, allow_nan=False) + "\n")
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
 
 
 def _progress_remaining(model: OnPolicyAlgorithm) -> float:
@@ -319,7 +330,7 @@ class ULTHOCallback(BaseCallback):
     def save(self, path: str | os.PathLike) -> str:
         """Writes the state atomically beside ``model.save(path)`` (see :func:`state_path`); returns the file."""
         target = state_path(path)
-        atomic_write_json(target, self.state_dict())
+        _atomic_write_json(target, self.state_dict())
         return target
 
     @classmethod

@@ -16,7 +16,7 @@ import numpy as np
 from ale_py.vector_env import AtariVectorEnv
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from common import precision_side_by_side, print_precision_table, print_table, ultho_on_off  # noqa: E402
+from common import precision_side_by_side, print_precision_table, print_table, ultho_on_off
 
 
 def env_only_steps_per_second(game: str, num_envs: int, steps: int) -> float:
@@ -38,7 +38,8 @@ def main() -> None:
     parser.add_argument("--env-id", default="BattleZone")
     parser.add_argument("--rom", default="battle_zone", help="the ROM id of --env-id, for the environment-only row")
     parser.add_argument("--steps", type=int, default=10_240, help="training steps per run (paper: 10M)")
-    parser.add_argument("--repeats", type=int, default=3, help="rounds of alternating runs (the three ULTHO configurations, then the two precisions)")
+    parser.add_argument("--repeats", type=int, default=3,
+                        help="rounds of alternating runs (the three ULTHO configurations, then the two precisions)")
     parser.add_argument("--script-args", nargs=argparse.REMAINDER, default=[],
                         help="further arguments for every training run (e.g. --torch-threads 2)")
     parser.add_argument("--sections", nargs="+", choices=("ultho", "precision"), default=["ultho", "precision"],
@@ -54,7 +55,8 @@ def main() -> None:
 
     if "precision" in args.sections:
         runs = precision_side_by_side("ppo_ultho_atari.py", [*base, "--no-ultho"], args.repeats)
-        print_precision_table(f"ppo_ultho_atari.py --no-ultho on {args.env_id}, 8 envs x 128 steps, float32 vs bf16", runs)
+        print_precision_table(f"ppo_ultho_atari.py --no-ultho on {args.env_id}, 8 envs x 128 steps, float32 vs bf16",
+                              runs)
 
 
 if __name__ == "__main__":

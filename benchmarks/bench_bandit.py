@@ -11,7 +11,7 @@ import sys
 import timeit
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from ultho_bandit import ULTHO  # noqa: E402
+from ultho_bandit import ULTHO
 
 
 def microseconds_per_pair(clusters: int, values: int, pairs: int, repeats: int = 5) -> tuple[float, float]:
@@ -24,7 +24,7 @@ def microseconds_per_pair(clusters: int, values: int, pairs: int, repeats: int =
         bandit = ULTHO(space, c=5.0, window=10)
         it = iter(range(pairs))
 
-        def pair() -> None:
+        def pair(bandit: ULTHO = bandit, it=it) -> None:
             bandit.select()
             bandit.update(utilities[next(it) & 4095])
 
@@ -39,8 +39,8 @@ def main() -> None:
     args = parser.parse_args()
     print(f"# ULTHO select()+update() cost  ({platform.processor() or platform.machine()}, "
           f"{os.cpu_count()} cores, Python {platform.python_version()})")
-    print(f"| clusters x values | best µs/pair | median µs/pair |")
-    print(f"|---|---|---|")
+    print("| clusters x values | best µs/pair | median µs/pair |")
+    print("|---|---|---|")
     for clusters, values in [(1, 3), (3, 3), (4, 3), (5, 3), (4, 10)]:
         best, median = microseconds_per_pair(clusters, values, args.pairs)
         print(f"| {clusters} x {values} | {best:.2f} | {median:.2f} |")

@@ -2,10 +2,10 @@
 
 Each benchmark trains the same number of steps at the paper's settings (SAC on DMC: CleanRL's defaults) with
 CleanRL's script and with ours (ULTHO on, and --no-ultho; for ALE and Procgen each also with --precision bf16),
-alternating all of them in every round so that drifting machine load hits all alike. A run is timed from process start to exit (imports, environment construction and start-up included) and its
-peak resident memory is read from the kernel's accounting of that process (``os.wait4``). The table gives
-medians over the rounds and ratios: CleanRL's wall time over ours (above 1: ours is faster) and our peak
-memory over CleanRL's.
+alternating all of them in every round so that drifting machine load hits all alike. A run is timed from process
+start to exit (imports, environment construction and start-up included) and its peak resident memory is read from
+the kernel's accounting of that process (``os.wait4``). The table gives medians over the rounds and ratios:
+CleanRL's wall time over ours (above 1: ours is faster) and our peak memory over CleanRL's.
 
 CLEANRL_DIR holds the five scripts of CleanRL's ``cleanrl/`` (https://github.com/vwxyzjn/cleanrl; measured with
 commit fe8d8a0), copied flat with ``cleanrl_utils/`` (``__init__.py``, ``atari_wrappers.py``, ``buffers.py``)

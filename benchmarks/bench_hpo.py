@@ -20,7 +20,7 @@ import tempfile
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from common import REPO, machine  # noqa: E402
+from common import REPO, machine
 
 SCRIPT = "ppo_ultho_minigrid.py"
 

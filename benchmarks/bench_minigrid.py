@@ -18,10 +18,10 @@ from minigrid.minigrid_env import MiniGridEnv
 from minigrid.wrappers import ImgObsWrapper
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from common import REPO, print_table, run_script, ultho_on_off  # noqa: E402
+from common import REPO, print_table, run_script, ultho_on_off
 
 sys.path.insert(0, REPO)
-from ppo_ultho_minigrid import MINIGRID_GEN_OBS, fast_gen_obs  # noqa: E402
+from ppo_ultho_minigrid import MINIGRID_GEN_OBS, fast_gen_obs
 
 
 def env_only_steps_per_second(env_id: str, num_envs: int, steps: int, fast_obs: bool) -> float:
@@ -45,10 +45,12 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="rounds of the three alternating configurations")
     args = parser.parse_args()
     neutral = ["learning_rate=0.001", "minibatch_size=256", "vf_coef=0.5"]
-    rows, shares = ultho_on_off("ppo_ultho_minigrid.py", ["--env-id", args.env_id, "--total-timesteps", str(args.steps)],
+    rows, shares = ultho_on_off("ppo_ultho_minigrid.py",
+                                ["--env-id", args.env_id, "--total-timesteps", str(args.steps)],
                         neutral, args.repeats)
     rows["ULTHO, paper space, --no-fast-obs"] = [
-        run_script("ppo_ultho_minigrid.py", ["--env-id", args.env_id, "--total-timesteps", str(args.steps), "--no-fast-obs"])["sps"]
+        run_script("ppo_ultho_minigrid.py",
+                   ["--env-id", args.env_id, "--total-timesteps", str(args.steps), "--no-fast-obs"])["sps"]
         for _ in range(args.repeats)]
     for name, fast_obs in (("env alone, MiniGrid's gen_obs", False), ("env alone, fast_gen_obs", True)):
         rows[name] = [env_only_steps_per_second(args.env_id, 16, 20_480, fast_obs) for _ in range(args.repeats)]

@@ -25,7 +25,7 @@ with contextlib.redirect_stderr(io.StringIO()):
     import procgen
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from common import machine, precision_side_by_side, print_precision_table, run_script  # noqa: E402
+from common import machine, precision_side_by_side, print_precision_table, run_script
 
 SCRIPT = "ppo_ultho_procgen.py"
 
@@ -62,17 +62,19 @@ def ultho_on_off_table(args: argparse.Namespace, base: list[str]) -> None:
     env_alone = [env_only_steps_per_second(args.env_id, 64, 16_384, args.env_threads) for _ in range(args.repeats)]
 
     ref = statistics.median(sps["PPO (--no-ultho)"])
-    print(f"# {SCRIPT} on {args.env_id}, 64 envs x 256 steps, {args.steps} steps per run, training on {device}  ({machine()})")
+    print(f"# {SCRIPT} on {args.env_id}, 64 envs x 256 steps, {args.steps} steps per run, training on {device}  "
+          f"({machine()})")
     print("| what | median steps/s | min | max | ratio to PPO | peak RSS (MB, max) |")
     print("|---|---|---|---|---|---|")
     for name in configurations:
         med = statistics.median(sps[name])
-        print(f"| {name} | {med:,.0f} | {min(sps[name]):,.0f} | {max(sps[name]):,.0f} | {med / ref:.3f} | {max(rss[name]):,.0f} |")
-    print(f"| env alone (ceiling) | {statistics.median(env_alone):,.0f} | {min(env_alone):,.0f} | {max(env_alone):,.0f} | "
-          f"{statistics.median(env_alone) / ref:.1f} | |")
+        print(f"| {name} | {med:,.0f} | {min(sps[name]):,.0f} | {max(sps[name]):,.0f} | {med / ref:.3f} | "
+              f"{max(rss[name]):,.0f} |")
+    print(f"| env alone (ceiling) | {statistics.median(env_alone):,.0f} | {min(env_alone):,.0f} | "
+          f"{max(env_alone):,.0f} | {statistics.median(env_alone) / ref:.1f} | |")
     neutral_sps = statistics.median(sps["ULTHO, neutral space"])
-    print(f"\nULTHO's cost, SPS of the neutral space vs PPO (identical training): {100 * (1 - neutral_sps / ref):+.1f}% "
-          f"(medians of {args.repeats} alternating runs)")
+    print(f"\nULTHO's cost, SPS of the neutral space vs PPO (identical training): "
+          f"{100 * (1 - neutral_sps / ref):+.1f}% (medians of {args.repeats} alternating runs)")
     print(f"ULTHO's cost, measured inside each ULTHO run (select, credit, apply, bandit logging as a share of "
           f"wall time): median {100 * statistics.median(shares):.3f}%, max {100 * max(shares):.3f}%")
 

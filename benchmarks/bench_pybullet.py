@@ -23,10 +23,10 @@ import numpy as np
 import pybullet_envs_gymnasium  # noqa: F401  (registers the *BulletEnv-v0 environments)
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from common import REPO, print_table, ultho_on_off  # noqa: E402
+from common import REPO, print_table, ultho_on_off
 
 sys.path.insert(0, REPO)
-import ppo_ultho_pybullet as script  # noqa: E402
+import ppo_ultho_pybullet as script
 
 IDLE_ENV_STEPS_PER_SECOND = 2800
 
@@ -70,7 +70,8 @@ def env_share_of_training(env_id: str, steps: int, extra: list[str]) -> float:
         with tempfile.TemporaryDirectory() as runs_dir:
             start = time.perf_counter()
             script.main(script.parse_args(["--env-id", env_id, "--total-timesteps", str(steps), *extra,
-                                           "--eval-episodes", "0", "--quiet", "--runs-dir", runs_dir, "--run-name", "share"]))
+                                           "--eval-episodes", "0", "--quiet", "--runs-dir", runs_dir,
+                                           "--run-name", "share"]))
             return env_seconds / (time.perf_counter() - start)
     finally:
         script.make_env = make_env
@@ -83,7 +84,8 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="rounds of the three alternating configurations")
     args = parser.parse_args()
     neutral = ["learning_rate=0.0002", "minibatch_size=64", "vf_coef=0.5"]
-    rows, shares = ultho_on_off("ppo_ultho_pybullet.py", ["--env-id", args.env_id, "--total-timesteps", str(args.steps)],
+    rows, shares = ultho_on_off("ppo_ultho_pybullet.py",
+                                ["--env-id", args.env_id, "--total-timesteps", str(args.steps)],
                                 neutral, args.repeats)
     rows["env alone (ceiling)"] = [env_only_steps_per_second(args.env_id, 10_000) for _ in range(args.repeats)]
     print_table(f"ppo_ultho_pybullet.py on {args.env_id}, 1 env x 2048 steps, minibatch 64, 10 epochs", rows, shares)

@@ -27,12 +27,12 @@ import time
 import torch
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from common import REPO, machine  # noqa: E402
+from common import REPO, machine
 
 sys.path.insert(0, REPO)
-from ultho_sb3 import CLUSTERS, ULTHOCallback, setting_in_force  # noqa: E402  (before SB3: quiets gym's notice)
-from stable_baselines3 import PPO  # noqa: E402
-from stable_baselines3.common.env_util import make_vec_env  # noqa: E402
+from ultho_sb3 import CLUSTERS, ULTHOCallback, setting_in_force  # before SB3: it quiets gym's import notice
+from stable_baselines3 import PPO
+from stable_baselines3.common.env_util import make_vec_env
 
 TOOL = "bench_sb3"
 EXAMPLE_SPACE = {"learning_rate": [1e-4, 3e-4, 1e-3], "n_epochs": [5, 10, 20]}
@@ -84,7 +84,7 @@ def main() -> None:
         parser.error(f"--batch-size {args.batch_size} does not divide the rollout of --n-envs * --n-steps = {rollout}")
     try:
         make_vec_env(args.env_id, n_envs=1).close()
-    except Exception as err:  # gymnasium raises several types for an unknown or unusable id
+    except Exception as err:  # noqa: BLE001  (gymnasium raises several types for an unknown or unusable id)
         parser.error(f"--env-id {args.env_id!r}: {err}")
     torch.set_num_threads(args.torch_threads)
 

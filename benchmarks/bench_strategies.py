@@ -24,7 +24,7 @@ import statistics
 import sys
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from ultho_bandit import ULTHO  # noqa: E402
+from ultho_bandit import ULTHO
 
 CLUSTERS, VALUES, PULLS = 3, 3, 244
 VARIANTS = [  # (label, options; None: a uniformly random cluster, then value)

@@ -30,10 +30,10 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from common import REPO, machine  # noqa: E402
+from common import REPO, machine
 
 sys.path.insert(0, REPO)
-from ultho_report import RETURN_TAG, Study  # noqa: E402
+from ultho_report import RETURN_TAG, Study
 
 PRECISIONS = ("float32", "bf16")
 
@@ -106,7 +106,7 @@ def print_table(args: argparse.Namespace, runs: dict[str, dict[int, dict]]) -> N
                   f"(per seed {', '.join(f'{d:+.1f}' for d in diffs)})", end="")
         print()
     else:
-        print(f"\nfinished runs: " + ", ".join(f"{p} {len(runs[p])}/{len(args.seeds)}" for p in PRECISIONS))
+        print("\nfinished runs: " + ", ".join(f"{p} {len(runs[p])}/{len(args.seeds)}" for p in PRECISIONS))
 
 
 def write_csv(path: str, runs: dict[str, dict[int, dict]]) -> None:
@@ -172,7 +172,8 @@ def main() -> None:
     parser.add_argument("--from-csv", help="draw --figure from such a CSV instead of the runs (no table)")
     args = parser.parse_args()
     if args.total_timesteps <= 0 or any(seed < 0 for seed in args.seeds):
-        parser.error(f"--total-timesteps must be positive and --seeds non-negative (got {args.total_timesteps}, {args.seeds})")
+        parser.error(f"--total-timesteps must be positive and --seeds non-negative "
+                     f"(got {args.total_timesteps}, {args.seeds})")
     title = f"{args.env_id}, PPO --no-ultho, float32 and bf16"
     if args.from_csv:
         if not args.figure:

@@ -23,7 +23,8 @@ def run(script: str, *args: str, timeout: float = 600, env: dict | None = None) 
                           timeout=timeout, cwd=REPO, env=None if env is None else {**os.environ, **env})
 
 
-def run_concurrently(script: str, arg_lists: list[list[str]], timeout: float = 600) -> list[subprocess.CompletedProcess]:
+def run_concurrently(script: str, arg_lists: list[list[str]],
+                     timeout: float = 600) -> list[subprocess.CompletedProcess]:
     """`run` for every argument list at once (each start pays the torch import); results in the same order."""
     processes = [subprocess.Popen([sys.executable, os.path.join(REPO, script), *args], stdout=subprocess.PIPE,
                                   stderr=subprocess.PIPE, text=True, cwd=REPO) for args in arg_lists]
@@ -121,7 +122,8 @@ def real_rollout(script, agent, envs, obs: np.ndarray, args) -> dict[str, torch.
     values = torch.stack(stored["values"]).numpy()
     advantages, last = np.zeros_like(rewards), 0.0
     for t in reversed(range(args.num_steps)):
-        nonterminal, next_values = (1 - done, next_value) if t == args.num_steps - 1 else (1 - dones[t + 1], values[t + 1])
+        nonterminal, next_values = ((1 - done, next_value) if t == args.num_steps - 1
+                                    else (1 - dones[t + 1], values[t + 1]))
         delta = rewards[t] + args.gamma * next_values * nonterminal - values[t]
         advantages[t] = last = delta + args.gamma * args.gae_lambda * nonterminal * last
     batch = {key: torch.cat(x) for key, x in stored.items()}
@@ -160,7 +162,8 @@ def assert_bf16_resume_equals_uninterrupted(script: str, tmp_path, args: list[st
     have matched. `args` is a plain-PPO command line with --checkpoint-every 2 and a --runs-dir."""
     with ThreadPoolExecutor(1) as pool:
         whole = pool.submit(run, script, *args, "--precision", "bf16", "--run-name", "whole")
-        kill_after_first_checkpoint(script, str(tmp_path / "killed"), *args, "--precision", "bf16", "--run-name", "killed")
+        kill_after_first_checkpoint(script, str(tmp_path / "killed"), *args, "--precision", "bf16",
+                                    "--run-name", "killed")
         assert whole.result().returncode == 0, whole.result().stderr
     checkpoint = torch.load(tmp_path / "killed" / "checkpoint.pt", weights_only=False)
     assert checkpoint["iteration"] < 4 and checkpoint["config"]["precision"] == "bf16"
@@ -170,7 +173,8 @@ def assert_bf16_resume_equals_uninterrupted(script: str, tmp_path, args: list[st
                for name, t in state.items() if name != "step")
     shutil.copytree(tmp_path / "killed", tmp_path / "at_kill")  # the resumed run replaces its checkpoint
     for result in run_concurrently(script, [["--resume", str(tmp_path / "killed"), "--quiet"],
-                                            [*args, "--init-from", str(tmp_path / "at_kill"), "--run-name", "float32"]]):
+                                            [*args, "--init-from", str(tmp_path / "at_kill"),
+                                             "--run-name", "float32"]]):
         assert result.returncode == 0, result.stderr
 
     whole, resumed = summary(str(tmp_path / "whole")), summary(str(tmp_path / "killed"))
@@ -178,7 +182,8 @@ def assert_bf16_resume_equals_uninterrupted(script: str, tmp_path, args: list[st
     for key in ("global_step", score_key, "eval"):
         assert whole[key] == resumed[key], key
     a, b = scalars(str(tmp_path / "whole")), scalars(str(tmp_path / "killed"))
-    for tag in ("losses/value_loss", "losses/policy_loss", "losses/entropy", "losses/approx_kl", "charts/episodic_return"):
+    for tag in ("losses/value_loss", "losses/policy_loss", "losses/entropy", "losses/approx_kl",
+                "charts/episodic_return"):
         assert a[tag] == b[tag], tag
     float32 = scalars(str(tmp_path / "float32"))
     assert summary(str(tmp_path / "float32"))["precision"] == "float32"

@@ -68,7 +68,8 @@ def test_smoke_run_summary_fields(smoke_run):
     assert s["rollout_seconds"] + s["update_seconds"] < s["wall_time_s"]
     assert s["peak_rss_mb"] > 0 and (s["peak_cuda_mb"] is None) == (s["device"] == "cpu")
     assert 0 < s["final_score_episodes"] <= 100
-    assert s["human_normalized_score"] == pytest.approx((s["final_score"] - QBERT_RANDOM) / (QBERT_HUMAN - QBERT_RANDOM))
+    assert s["human_normalized_score"] == pytest.approx((s["final_score"] - QBERT_RANDOM)
+                                                        / (QBERT_HUMAN - QBERT_RANDOM))
     assert s["eval"]["episodes"] == 2 and len(s["eval"]["returns"]) == 2
     assert sum(s["bandit"]["selections"].values()) == 3  # the last selection is never credited
     assert s["bandit"]["coi"] in SPACE and s["bandit"]["noi"] in SPACE
@@ -118,8 +119,8 @@ def test_killed_and_resumed_run_equals_uninterrupted_run(tmp_path):
 
 
 def test_checkpoint_right_after_a_game_ended_on_a_rollouts_last_step_resumes_exactly(tmp_path):
-    # Without no-op starts a game of Boxing lasts exactly 1785 steps (the clock runs out): with 255-step
-    # rollouts the checkpoint at iteration 7 is written just after every game ended, so the next game has no actions yet.
+    # Without no-op starts a game of Boxing lasts exactly 1785 steps (the clock runs out): with 255-step rollouts
+    # the checkpoint at iteration 7 is written just after every game ended, so the next game has no actions yet.
     args = ["--env-id", "Boxing", "--noop-max", "0", "--num-envs", "1", "--num-steps", "255", "--total-timesteps",
             "2040", "--minibatch-size", "255", "--update-epochs", "1", "--ultho-clusters", "minibatch_size=85,255",
             "vf_coef", "--checkpoint-every", "7", "--eval-episodes", "0", "--quiet", "--runs-dir", str(tmp_path)]

@@ -69,7 +69,8 @@ def test_no_ultho_keeps_settings_fixed_and_logs_no_bandit_tags(tmp_path):
     assert [v for _, v in series["hparams/vf_coef"]] == [0.5, 0.5]
     assert [v for _, v in series["charts/learning_rate"]] == pytest.approx([0.002, 0.002])
     s = summary(str(tmp_path / "ppo"))
-    assert s["bandit"] is None and s["settings_in_force"] == {"learning_rate": 0.002, "minibatch_size": 256, "vf_coef": 0.5}
+    assert s["bandit"] is None
+    assert s["settings_in_force"] == {"learning_rate": 0.002, "minibatch_size": 256, "vf_coef": 0.5}
 
 
 def test_killed_and_resumed_run_equals_uninterrupted_run(tmp_path):
@@ -184,12 +185,14 @@ def test_init_from_puts_the_new_settings_in_force_everywhere(first_half, tmp_pat
     assert checkpoint["config"]["learning_rate"] == 0.005 and checkpoint["iteration"] == 12
     # The source's optimizer state came along: Adam's step count goes on from the source's.
     steps_per_iteration = 4 * 512 // 256
-    assert checkpoint["optimizer"]["state"][0]["step"] == source["optimizer"]["state"][0]["step"] + 6 * steps_per_iteration
+    assert (checkpoint["optimizer"]["state"][0]["step"]
+            == source["optimizer"]["state"][0]["step"] + 6 * steps_per_iteration)
 
 
 def test_init_from_refuses_another_rollout_or_an_exhausted_budget(first_half, tmp_path):
     first = str(first_half / "first")
-    for args, named in ((["--num-envs", "4", "--total-timesteps", "6144"], "its num_envs is 8, this run's --num-envs 4"),
+    for args, named in ((["--num-envs", "4", "--total-timesteps", "6144"],
+                         "its num_envs is 8, this run's --num-envs 4"),
                         (["--env-id", "MiniGrid-Empty-6x6-v0", "--total-timesteps", "6144"], "its env_id is"),
                         (["--total-timesteps", "3072"], "is already at step 3072")):
         result = run(SCRIPT, *INIT_FROM, "--init-from", first, *args, "--runs-dir", str(tmp_path / "r"))

@@ -88,7 +88,8 @@ def test_test_episodes_play_levels_outside_the_training_levels(smoke_run):
 
 def test_no_ultho_keeps_settings_fixed_and_logs_no_bandit_tags(tmp_path):
     run_ok(SCRIPT, "--num-envs", "4", "--num-steps", "32", "--minibatch-size", "64", "--total-timesteps", "256",
-           "--no-ultho", "--learning-rate", "0.002", "--eval-episodes", "0", "--runs-dir", str(tmp_path), "--run-name", "ppo")
+           "--no-ultho", "--learning-rate", "0.002", "--eval-episodes", "0", "--runs-dir", str(tmp_path),
+           "--run-name", "ppo")
     series = scalars(str(tmp_path / "ppo"))
     assert not [tag for tag in series if tag.startswith("ultho/") or tag.startswith("eval/")]
     assert [v for _, v in series["hparams/learning_rate"]] == pytest.approx([0.002, 0.002])
@@ -113,7 +114,8 @@ def test_killed_and_resumed_run_equals_uninterrupted_run(tmp_path):
     run_ok(SCRIPT, "--resume", str(tmp_path / "killed"), "--quiet")
 
     whole, resumed = summary(str(tmp_path / "whole")), summary(str(tmp_path / "killed"))
-    for key in ("global_step", "bandit", "settings_in_force", "train_score", "final_score_episodes", "eval", "test_score"):
+    for key in ("global_step", "bandit", "settings_in_force", "train_score", "final_score_episodes", "eval",
+                "test_score"):
         assert whole[key] == resumed[key], key
     a, b = scalars(str(tmp_path / "whole")), scalars(str(tmp_path / "killed"))
     for tag in ("ultho/selected_cluster", "ultho/selected_value", "ultho/credit", "losses/value_loss",
@@ -214,7 +216,8 @@ def test_help_lists_every_flag():
     result = run(SCRIPT, "--help")
     assert result.returncode == 0
     for flag in ("--env-id", "--num-levels", "--start-level", "--total-timesteps", "--minibatch-size",
-                 "--update-chunk", "--env-threads", "--norm-reward", "--ultho-clusters", "--no-ultho", "--ultho-utility", "--resume",
+                 "--update-chunk", "--env-threads", "--norm-reward", "--ultho-clusters", "--no-ultho",
+                 "--ultho-utility", "--resume",
                  "--checkpoint-every", "--eval-episodes", "--eval-every", "--quiet", "--precision"):
         assert flag in result.stdout
 

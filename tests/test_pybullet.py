@@ -32,7 +32,8 @@ def smoke_run(tmp_path_factory):
 
 def test_smoke_run_writes_every_tensorboard_tag(smoke_run):
     series = scalars(smoke_run)
-    expected = CHARTS + [f"hparams/{name}" for name in SPACE] + list(ULTHO(SPACE).scalars()) + ["ultho/credit", "eval/return"]
+    expected = (CHARTS + [f"hparams/{name}" for name in SPACE] + list(ULTHO(SPACE).scalars())
+                + ["ultho/credit", "eval/return"])
     missing = [tag for tag in expected if tag not in series]
     assert not missing, f"missing tags: {missing}"
     assert [step for step, _ in series["ultho/selected_cluster"]] == [256, 512]
@@ -46,7 +47,8 @@ def test_smoke_run_writes_every_tensorboard_tag(smoke_run):
 
 def test_smoke_run_summary_fields(smoke_run):
     s = summary(smoke_run)
-    assert s["script"] == "ppo_ultho_pybullet" and s["global_step"] == 512 and s["iterations"] == 2 and s["ultho"] is True
+    assert s["script"] == "ppo_ultho_pybullet" and s["global_step"] == 512 and s["iterations"] == 2
+    assert s["ultho"] is True
     assert s["env_id"] == "HopperBulletEnv-v0" and s["settings"]["learning_rate"] == 2e-4
     assert s["settings"]["num_envs"] == 1 and s["settings"]["ent_coef"] == 0.0 and s["settings"]["clip_vloss"] is False
     assert s["wall_time_s"] > 0 and s["sps"] > 0 and 0 <= s["ultho_share"] < 1
@@ -118,7 +120,8 @@ def test_no_ultho_keeps_settings_fixed_and_logs_no_bandit_tags(tmp_path):
     assert [v for _, v in series["hparams/vf_coef"]] == [0.5, 0.5]
     assert [v for _, v in series["charts/learning_rate"]] == pytest.approx([5e-4, 5e-4])
     s = summary(str(tmp_path / "ppo"))
-    assert s["bandit"] is None and s["settings_in_force"] == {"learning_rate": 0.0005, "minibatch_size": 64, "vf_coef": 0.5}
+    assert s["bandit"] is None
+    assert s["settings_in_force"] == {"learning_rate": 0.0005, "minibatch_size": 64, "vf_coef": 0.5}
 
 
 def test_killed_and_resumed_run_equals_uninterrupted_run(tmp_path):
@@ -147,8 +150,10 @@ def test_killed_and_resumed_run_equals_uninterrupted_run(tmp_path):
     assert final_whole["global_step"] == final_resumed["global_step"] == 1536
     for stats in ("obs", "return"):
         for field in ("mean", "var", "count"):
-            assert np.array_equal(final_whole["normalizer"][stats][field], final_resumed["normalizer"][stats][field]), (stats, field)
-    assert np.array_equal(final_whole["normalizer"]["discounted_return"], final_resumed["normalizer"]["discounted_return"])
+            assert np.array_equal(final_whole["normalizer"][stats][field],
+                                  final_resumed["normalizer"][stats][field]), (stats, field)
+    assert np.array_equal(final_whole["normalizer"]["discounted_return"],
+                          final_resumed["normalizer"]["discounted_return"])
     assert final_whole["normalizer"]["obs"]["count"] == pytest.approx(1537 + 1e-4)
     for name, tensor in final_whole["agent"].items():
         assert torch.equal(tensor, final_resumed["agent"][name]), name
@@ -191,7 +196,8 @@ def test_init_from_carries_the_normalizer_over_and_puts_the_new_settings_in_forc
     run_ok(SCRIPT, *args, "--total-timesteps", "1536", "--init-from", str(tmp_path / "first"), "--run-name", "same")
     run_ok(SCRIPT, *args, "--total-timesteps", "1536", "--init-from", str(tmp_path / "first"), "--run-name", "new",
            "--learning-rate", "0.0007", "--minibatch-size", "128", "--seed", "5")
-    whole, same, new = (torch.load(tmp_path / name / "checkpoint.pt", weights_only=False) for name in ("whole", "same", "new"))
+    whole, same, new = (torch.load(tmp_path / name / "checkpoint.pt", weights_only=False)
+                        for name in ("whole", "same", "new"))
     for stats in ("obs", "return"):
         for field in ("mean", "var", "count"):
             assert np.array_equal(whole["normalizer"][stats][field], same["normalizer"][stats][field]), (stats, field)
@@ -321,6 +327,7 @@ def test_ppo_learns_inverted_pendulum(tmp_path):
 @pytest.mark.parametrize("env_id", ["AntBulletEnv-v0", "Walker2DBulletEnv-v0", "Pendulum-v1"])
 def test_other_environments_run(tmp_path, env_id):
     run_ok(SCRIPT, "--env-id", env_id, "--num-envs", "2", "--num-steps", "128", "--total-timesteps", "256",
-           "--update-epochs", "1", "--eval-episodes", "1", "--quiet", "--runs-dir", str(tmp_path), "--run-name", "other")
+           "--update-epochs", "1", "--eval-episodes", "1", "--quiet", "--runs-dir", str(tmp_path),
+           "--run-name", "other")
     s = summary(str(tmp_path / "other"))
     assert s["env_id"] == env_id and s["global_step"] == 256 and s["eval"]["episodes"] == 1

@@ -10,7 +10,8 @@ import time
 import pytest
 
 from helpers import REPO, files_under, run, run_concurrently, summary
-from relay_ultho import default_relay_dir, flag_values, without_flag
+from relay_ultho import default_relay_dir
+from ultho_runs import flag_values, without_flag
 
 TOOL = "relay_ultho.py"
 SCRIPT = "ppo_ultho_minigrid.py"
@@ -88,11 +89,11 @@ def test_relay_runs_search_one_cluster_each_with_the_full_runs_values_and_same_s
     full, coi, noi = (summary(str(relay_dir / name)) for name in ("full", "coi", "noi"))
     space = full["bandit"]["search_space"]
     assert space == {"learning_rate": [1e-3, 2.5e-3, 5e-3], "minibatch_size": [32, 64, 128]}
-    for run, cluster in ((coi, full["bandit"]["coi"]), (noi, full["bandit"]["noi"])):
-        assert run["bandit"]["search_space"] == {cluster: space[cluster]}
-        assert run["seed"] == full["seed"] and run["env_id"] == full["env_id"]
+    for relay_run, cluster in ((coi, full["bandit"]["coi"]), (noi, full["bandit"]["noi"])):
+        assert relay_run["bandit"]["search_space"] == {cluster: space[cluster]}
+        assert relay_run["seed"] == full["seed"] and relay_run["env_id"] == full["env_id"]
         same = ("ultho_clusters", "run_name", "resume", "quiet")
-        assert {k: v for k, v in run["settings"].items() if k not in same} == \
+        assert {k: v for k, v in relay_run["settings"].items() if k not in same} == \
                {k: v for k, v in full["settings"].items() if k not in same}
 
 
@@ -151,7 +152,8 @@ BAD_INPUTS = [
     ([SCRIPT, "--", "--runs-dir=elsewhere"], "--runs-dir is set by the tool itself"),
     ([SCRIPT, "--", "--resume", "runs/x"], "--resume is set by the tool itself"),
     ([SCRIPT, "--", "--init-from", "runs/x"], "--init-from is set by the tool itself"),
-    ([SCRIPT, "--", "--ultho-clusters", "vf_coef"], "--ultho-clusters vf_coef: Relay-ULTHO needs at least two clusters"),
+    ([SCRIPT, "--", "--ultho-clusters", "vf_coef"],
+     "--ultho-clusters vf_coef: Relay-ULTHO needs at least two clusters"),
     (["ppo_ultho_nothing.py"], "script ppo_ultho_nothing.py: no such file"),
     ([SCRIPT, "--from", "/no/such/run"], "--from /no/such/run: no summary.json there"),
     ([SCRIPT, "--max-retries", "-1"], "--max-retries must be >= 0, got -1"),
@@ -199,4 +201,5 @@ def test_argument_helpers_and_default_directory():
 def test_help_reads_well():
     result = run(TOOL, "--help")
     assert result.returncode == 0
-    assert "Relay-ULTHO (Algorithm 2)" in result.stdout and "python relay_ultho.py ppo_ultho_procgen.py" in result.stdout
+    assert "Relay-ULTHO (Algorithm 2)" in result.stdout
+    assert "python relay_ultho.py ppo_ultho_procgen.py" in result.stdout

@@ -63,7 +63,8 @@ def study(tmp_path_factory):
                 str(relay_dir), "--run-name", role]
         for role, cluster in relay_runs.items()])
     assert all(r.returncode == 0 for r in results), [r.stderr for r in results]
-    scores = {"full": full["final_score"]} | {role: summary(str(relay_dir / role))["final_score"] for role in relay_runs}
+    scores = {"full": full["final_score"]} | {role: summary(str(relay_dir / role))["final_score"]
+                                              for role in relay_runs}
     winner = "coi" if scores["coi"] >= scores["noi"] else "noi"
     relay = {"format": 1, "script": SCRIPT, "script_args": TINY, "env_id": ENVS[0], "seed": 1, "status": "done",
              "full_run": str(full_run), "coi": relay_runs["coi"], "noi": relay_runs["noi"], "coi_run": "coi",
@@ -82,7 +83,8 @@ def study(tmp_path_factory):
 def reports(study, tmp_path_factory):
     """The full report, and the same --seed again without the per-run figures, both at once."""
     out = tmp_path_factory.mktemp("reports")
-    common = [str(study), "--seed", "7", "--reps", "5000", "--solve-threshold", str(SOLVE_THRESHOLD), "--solve-window", "2"]
+    common = [str(study), "--seed", "7", "--reps", "5000", "--solve-threshold", str(SOLVE_THRESHOLD),
+              "--solve-window", "2"]
     results = run_concurrently(REPORT, [common + ["--out", str(out / "a")],
                                         common + ["--out", str(out / "b"), "--no-per-run"]])
     for result in results:
@@ -260,7 +262,7 @@ def test_damaged_files_are_named_once_each_and_skipped(study, tmp_path):
     result = run(REPORT, str(copy), "--out", str(tmp_path / "out"), "--reps", "500", "--no-per-run")
     assert result.returncode == 0 and "Traceback" not in result.stderr, result.stderr
     warnings = result.stderr.splitlines()[:-1]
-    assert all(line.startswith("ultho_report: warning: ") for line in warnings), warnings
+    assert all(line.startswith("ultho_report.py: warning: ") for line in warnings), warnings
     named = {runs[0] / "summary.json": "unreadable", events: "truncated", runs[2]: "no summary.json",
              copy / "relays" / "relay_1" / "relay.json": "relay.json format", procgen: "no TensorBoard event files"}
     for path, what in named.items():
@@ -277,7 +279,7 @@ def test_bad_arguments_are_one_line_and_exit_2(tmp_path):
                                                       ["--help"]])
     for result, what in ((missing, f"no such path: {tmp_path / 'nowhere'}"), (empty, "no run found below")):
         assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
-        assert result.stderr.startswith("ultho_report: error: ") and what in result.stderr
+        assert result.stderr.startswith("ultho_report.py: error: ") and what in result.stderr
     assert help_.returncode == 0 and "python ultho_report.py runs/ --out report/" in help_.stdout
     assert not (tmp_path / "report").exists()
 
@@ -372,7 +374,8 @@ def test_methods_are_aggregated_only_over_the_environments_they_all_cover():
 
 def test_bandit_variants_are_methods_of_their_own(tmp_path):
     """A Thompson-sampling run beside a paper ULTHO run: its own label (no c, which it does not use), its own row."""
-    jobs = [TINY + SPACE + ["--env-id", ENVS[0], "--seed", "1", "--runs-dir", str(tmp_path / "runs"), "--run-name", name]
+    jobs = [TINY + SPACE + ["--env-id", ENVS[0], "--seed", "1", "--runs-dir", str(tmp_path / "runs"),
+                            "--run-name", name]
             + extra for name, extra in (("paper", []), ("ts", ["--ultho-strategy", "ts", "--ultho-credit",
                                                                 "improvement", "--ultho-scale", "running"]))]
     for result in run_concurrently(SCRIPT, jobs):
@@ -410,7 +413,8 @@ def test_hpo_studies_are_rows_with_their_whole_budget(pbt_study, tmp_path):
     report = (tmp_path / "out" / "report.md").read_text()
     seen = record["max_observed_score"]
     assert f"({seen['trial']}, {seen['step']:,}) | {len(record['exploits'])} |" in report
-    assert "![settings schedules](schedules_minigrid.png)" in report and (tmp_path / "out" / "schedules_minigrid.png").is_file()
+    assert "![settings schedules](schedules_minigrid.png)" in report
+    assert (tmp_path / "out" / "schedules_minigrid.png").is_file()
 
 
 @pytest.mark.parametrize("env_id", ["AntBulletEnv-v0", "HalfCheetahBulletEnv-v0", "HopperBulletEnv-v0",
@@ -419,6 +423,7 @@ def test_hpo_studies_are_rows_with_their_whole_budget(pbt_study, tmp_path):
 def test_every_reference_environment_is_normalized_by_its_own_references(env_id):
     benchmark = "pybullet" if "Bullet" in env_id else "atari" if "Qbert" in env_id else "procgen"
     low, high = ultho_report.reference_of(benchmark, env_id)
-    assert ultho_report.game_of(env_id, ultho_report.REFERENCES[benchmark]).lower() in env_id.lower().replace("-", "")
+    game = ultho_report.game_of(env_id, ultho_report.REFERENCES[benchmark])
+    assert game.lower() in env_id.lower().replace("-", "")
     assert ultho_report.normalized(benchmark, env_id, high) == 1.0
     assert ultho_report.normalized(benchmark, env_id, low) == 0.0

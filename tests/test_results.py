@@ -53,7 +53,7 @@ def test_a_run_left_out_of_the_data_stops_the_report_unless_a_partial_one_is_ask
     result = run("ultho_report.py", str(data), "--out", str(tmp_path / "report"), "--no-per-run")
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith(f"ultho_report: error: missing run {full_run} (referred to by ")
+    assert len(lines) == 1 and lines[0].startswith(f"ultho_report.py: error: missing run {full_run} (referred to by ")
     assert "relay_c5.0_w10__s1/relay.json" in lines[0] and "--allow-missing" in lines[0]
     assert not (tmp_path / "report").exists()
     partial = run("ultho_report.py", str(data), "--out", str(tmp_path / "report"), "--no-per-run", "--allow-missing")
@@ -68,7 +68,7 @@ def test_the_exporter_says_when_git_would_leave_its_files_out(tmp_path):
     result = run("ultho_report.py", os.path.join(RESULTS, "pybullet", "data"), "--out", str(tmp_path / "report"),
                  "--no-per-run", "--export-data", str(exported))
     assert result.returncode == 0, result.stderr
-    assert "ultho_report: warning: git ignores" in result.stderr and "a commit would leave them out" in result.stderr
+    assert "ultho_report.py: warning: git ignores" in result.stderr and "a commit would leave them out" in result.stderr
     (tmp_path / ".gitignore").write_text("/runs/\n")
     shutil.rmtree(exported)
     again = run("ultho_report.py", os.path.join(RESULTS, "pybullet", "data"), "--out", str(tmp_path / "report"),

@@ -2,7 +2,6 @@
 
 import math
 import os
-import shutil
 
 import numpy as np
 import pytest
@@ -199,8 +198,9 @@ def test_killed_and_resumed_run_equals_uninterrupted_run(tmp_path):
                                           final_resumed["sac"]["q_optimizer"]["state"].values()):
         assert all(torch.equal(state_whole[k], state_resumed[k]) for k in state_whole)
     # The second episode's 500 actions so far, the same in both.
-    assert [len(a) for a in final_whole["envs"]["actions"]] == [len(a) for a in final_resumed["envs"]["actions"]] == [500]
-    assert all(np.array_equal(x, y) for x, y in zip(final_whole["envs"]["actions"], final_resumed["envs"]["actions"]))
+    actions_whole, actions_resumed = final_whole["envs"]["actions"], final_resumed["envs"]["actions"]
+    assert [len(a) for a in actions_whole] == [len(a) for a in actions_resumed] == [500]
+    assert all(np.array_equal(x, y) for x, y in zip(actions_whole, actions_resumed))
 
 
 def test_init_from_carries_the_replay_buffer_and_puts_new_settings_in_force(tmp_path):

@@ -77,7 +77,8 @@ def test_dry_run_of_a_custom_grid_counts_steps_without_an_hours_estimate(tmp_pat
 
 
 def test_variants_name_their_runs_and_pass_their_options(tmp_path):
-    result = run(TOOL, "--paper", "minigrid", "--points", "5:10", "--variants", "ucb:level:none", "ts:improvement:running",
+    result = run(TOOL, "--paper", "minigrid", "--points", "5:10",
+                 "--variants", "ucb:level:none", "ts:improvement:running",
                  "--env-ids", "MiniGrid-DoorKey-6x6-v0", "--seeds", "1", "--dry-run", "--out", str(tmp_path / "s"))
     assert result.returncode == 0, result.stderr
     commands = result.stdout.strip().splitlines()
@@ -198,7 +199,8 @@ def test_killed_sweep_restarted_finishes_only_what_is_missing(tmp_path):
     out = tmp_path / "s"
     # Eight iterations, a checkpoint after each: the second run is killed between checkpoints.
     args = [*TINY[:TINY.index("--total-timesteps")], "--total-timesteps", "2048", "--methods", "ultho",
-            "--seeds", "1", "2", "--workers", "1", "--out", str(out), *TINY[TINY.index("--"):], "--checkpoint-every", "1"]
+            "--seeds", "1", "2", "--workers", "1", "--out", str(out), *TINY[TINY.index("--"):],
+            "--checkpoint-every", "1"]
     process = subprocess.Popen([sys.executable, os.path.join(REPO, TOOL), *args], cwd=REPO, stdout=subprocess.DEVNULL,
                                stderr=subprocess.DEVNULL, start_new_session=True)
     first = out / "runs" / "minigrid__MiniGrid-Empty-5x5-v0__ultho_c5.0_w10__s1"
