@@ -353,8 +353,10 @@ def checked_plan(args: argparse.Namespace, script_args: list[str], study_dir: st
     iterations = final_step // batch_size
     interval = args.interval if args.interval is not None else math.ceil(iterations / 10) * batch_size
     if interval <= 0 or interval % batch_size:
+        made_of = (f"--ultho-interval {parsed.ultho_interval}" if hasattr(parsed, "ultho_interval")
+                   else f"--num-envs {parsed.num_envs} x --num-steps {parsed.num_steps}")
         raise UsageError(f"--interval {interval} is not a whole number of iterations (one iteration is "
-                         f"{batch_size} steps: --num-envs {parsed.num_envs} x --num-steps {parsed.num_steps})")
+                         f"{batch_size} steps: {made_of})")
     searched = {name: values for name, values in space.items() if len(values) > 1}
     if not searched:
         raise UsageError(f"--ultho-clusters {' '.join(parsed.ultho_clusters)}: no cluster has two values to search")

@@ -919,7 +919,8 @@ def robustness_figure(runs: list[Run], benchmark: str, grid: dict, seed: int, re
         ppo = strata_of([r for r in runs if r.kind == "ppo" and r.env_id == env_id])
         if ppo:
             point, low, high = (100 * v for v in aggregate_with_interval(ppo, "mean", seed, reps))
-            panel.axhline(point, color="black", linestyle="--", label="PPO (fixed settings)")
+            baseline = "SAC" if benchmark == "dmc" else "PPO"
+            panel.axhline(point, color="black", linestyle="--", label=f"{baseline} (fixed settings)")
             panel.axhspan(low, high, color="black", alpha=0.08, zorder=0)
         panel.set_xticks(range(len(windows)), [f"W = {w}" for w in windows])
         panel.set_xlim(-0.5, len(windows) - 0.5)

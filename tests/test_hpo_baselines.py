@@ -282,3 +282,13 @@ def test_help_reads_like_documentation():
     for text in ("population-based training (pbt)", "--ray-address", "--interval", "--samples",
                  "python hpo_baselines.py ppo_ultho_minigrid.py --method pbt --population 4 --seed 1"):
         assert text in result.stdout, text
+
+
+def test_sac_interval_refusal_names_the_sac_flag_that_sets_an_iteration(tmp_path):
+    result = run(TOOL, "sac_ultho_dmc.py", "--method", "pbt", "--population", "2", "--interval", "150",
+                 "--study-dir", str(tmp_path / "study"), "--", "--env-id", "cheetah-run", "--total-timesteps", "2000",
+                 "--ultho-interval", "100")
+    assert result.returncode == 2, result.stderr
+    assert "--interval 150 is not a whole number of iterations (one iteration is 100 steps: --ultho-interval 100)" \
+        in result.stderr
+    assert not (tmp_path / "study").exists()
