@@ -425,7 +425,7 @@ class Study:
                 widest[run.benchmark] = run.search_space
         for run in self.runs:
             if run.kind == "ppo":
-                run.label = "SAC" if run.benchmark == "dmc" else "PPO"  # the fixed-settings baseline
+                run.label = baseline_of(run.benchmark)
                 continue
             if run.kind in HPO_METHODS:
                 run.label = (f"random search ({run.study.get('samples')} samples)" if run.kind == "random" else
@@ -487,6 +487,11 @@ def reference_of(benchmark: str, env_id: str) -> tuple[float, float] | None:
     table = REFERENCES[benchmark]
     game = game_of(env_id, table)
     return None if game is None else table[game]
+
+
+def baseline_of(benchmark: str) -> str:
+    """The name of a benchmark's fixed-settings runs (the script with --no-ultho)."""
+    return "SAC" if benchmark == "dmc" else "PPO"
 
 
 def normalized(benchmark: str, env_id: str, raw: float) -> float | None:
@@ -919,8 +924,7 @@ def robustness_figure(runs: list[Run], benchmark: str, grid: dict, seed: int, re
         ppo = strata_of([r for r in runs if r.kind == "ppo" and r.env_id == env_id])
         if ppo:
             point, low, high = (100 * v for v in aggregate_with_interval(ppo, "mean", seed, reps))
-            baseline = "SAC" if benchmark == "dmc" else "PPO"
-            panel.axhline(point, color="black", linestyle="--", label=f"{baseline} (fixed settings)")
+            panel.axhline(point, color="black", linestyle="--", label=f"{baseline_of(benchmark)} (fixed settings)")
             panel.axhspan(low, high, color="black", alpha=0.08, zorder=0)
         panel.set_xticks(range(len(windows)), [f"W = {w}" for w in windows])
         panel.set_xlim(-0.5, len(windows) - 0.5)
@@ -1028,6 +1032,7 @@ def benchmark_section(study: Study, benchmark: str, args: argparse.Namespace, ro
         relays = any(r.kind == "relay" for r in runs)
         ppo = [r for r in runs if r.kind == "ppo"]
         paired = relays and len(ppo) > len({r.env_id for r in ppo})
+        baseline = baseline_of(benchmark)
         lines += ["### Sample efficiency", "",
                   f"Steps to solve: the first environment step at which a run's running score (the mean of its last "
                   f"{window} logged training returns, each the mean return of the episodes that ended in one "
@@ -1037,14 +1042,14 @@ def benchmark_section(study: Study, benchmark: str, args: argparse.Namespace, ro
                   + (" Relay-ULTHO: its winning run, from that run's start; the last column counts from the relay's "
                      "start instead, its full ULTHO run's steps included (the COI and NOI runs side by side)."
                      if relays else "")
-                  + (" PPO, better of 2 seeds: fixed PPO selected as a relay selects, the run with the higher final "
-                     "score of every pair of seeds on an environment (all pairs), scored by that run."
+                  + (f" {baseline}, better of 2 seeds: fixed {baseline} selected as a relay selects, the run with "
+                     "the higher final score of every pair of seeds on an environment (all pairs), scored by that run."
                      if paired else ""), "",
                   "| method | " + " | ".join(envs) + " | all |" + (" all, from the relay's start |" if relays else ""),
                   "|---|" + "---|" * (len(envs) + 1 + relays)]
         rows_of = [(label, [r for r in runs if r.label == label]) for label in methods]
         if paired:
-            rows_of.insert(methods.index("PPO") + 1, ("PPO, better of 2 seeds", better_of_two(ppo)))
+            rows_of.insert(methods.index(baseline) + 1, (f"{baseline}, better of 2 seeds", better_of_two(ppo)))
         for label, members in rows_of:
             cells = [efficiency_of([r for r in members if r.env_id == env], threshold, window).text() for env in envs]
             cells.append(efficiency_of(members, threshold, window).text())
@@ -1054,7 +1059,7 @@ def benchmark_section(study: Study, benchmark: str, args: argparse.Namespace, ro
         lines += ["", f"![sample efficiency]({efficiency})", ""]
         if paired:
             selected = [(label, [r.score for r in members if r.score is not None]) for label, members in rows_of
-                        if label in ("PPO", "PPO, better of 2 seeds") or members[0].kind == "relay"]
+                        if label in (baseline, f"{baseline}, better of 2 seeds") or members[0].kind == "relay"]
             lines += ["Final score of the scored runs (mean over runs, on the scale above): "
                       + "; ".join(f"{label} {100 * np.mean(scores):.1f}%" for label, scores in selected if scores)
                       + ".", ""]

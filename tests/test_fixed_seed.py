@@ -40,8 +40,7 @@ CASES = {
 }
 
 # What may differ between two runs of the same computation: how long it took, where it was written.
-VOLATILE = ("run_dir", "runs_dir", "wall_time_s", "sps", "elapsed", "ultho_seconds", "ultho_share", "rollout_seconds",
-            "peak_rss_mb", "peak_memory_mb", "peak_cuda_memory_mb")
+VOLATILE = ("run_dir", "runs_dir", "wall_time_s", "sps", "elapsed", "ultho_share")
 VOLATILE_TAGS = ("charts/SPS", "charts/ultho_share")
 
 

@@ -11,9 +11,8 @@ import pytest
 
 from helpers import run, run_concurrently, scalars, summary
 from hpo_study import SCRIPT_ARGS
-import ultho_report
-from ultho_report import (PROCGEN_EASY, PYBULLET_REFERENCE, Efficiency, aggregate_with_interval, coverage_groups,
-                          game_of, normalized, raw_score, steps_to_threshold)
+from ultho_report import (PROCGEN_EASY, PYBULLET_REFERENCE, REFERENCES, Efficiency, aggregate_with_interval,
+                          coverage_groups, game_of, normalized, raw_score, reference_of, steps_to_threshold)
 
 REPORT = "ultho_report.py"
 SCRIPT = "ppo_ultho_minigrid.py"
@@ -422,8 +421,7 @@ def test_hpo_studies_are_rows_with_their_whole_budget(pbt_study, tmp_path):
                                     "starpilot"])
 def test_every_reference_environment_is_normalized_by_its_own_references(env_id):
     benchmark = "pybullet" if "Bullet" in env_id else "atari" if "Qbert" in env_id else "procgen"
-    low, high = ultho_report.reference_of(benchmark, env_id)
-    game = ultho_report.game_of(env_id, ultho_report.REFERENCES[benchmark])
-    assert game.lower() in env_id.lower().replace("-", "")
-    assert ultho_report.normalized(benchmark, env_id, high) == 1.0
-    assert ultho_report.normalized(benchmark, env_id, low) == 0.0
+    low, high = reference_of(benchmark, env_id)
+    assert game_of(env_id, REFERENCES[benchmark]).lower() in env_id.lower().replace("-", "")
+    assert normalized(benchmark, env_id, high) == 1.0
+    assert normalized(benchmark, env_id, low) == 0.0
