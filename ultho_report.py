@@ -1103,12 +1103,19 @@ def benchmark_section(study: Study, benchmark: str, args: argparse.Namespace, ro
                   "Left: each cluster's cumulative share of the selections so far (mean over runs); right: the "
                   "share of each value among its cluster's selections (pooled over runs). Bounds: each cluster's "
                   "utility U (mean of its last W credits, Eq. 6) and U + c·sqrt(ln i / N), the bound Eq. 4 "
-                  "maximises, mean over runs.", ""]
+                  "maximises, mean over runs. The tables: the credited selections of each value, pooled over the "
+                  "runs; then each cluster's share of them on each environment, pooled over its runs (in brackets "
+                  "the lowest and highest share of a single run), and the bonus / utility spread: over the second "
+                  "half of each run, the median of the clusters' mean UCB bonus c·sqrt(ln i / N) divided by the "
+                  "spread of their utilities in the bound's units, the median over the runs; above 1 the bonus "
+                  "outweighs what separates the clusters and they are taken in turn, well below 1 the bandit "
+                  "follows the utilities (– for strategies without a bonus).", ""]
     for label in ultho_methods:
         members = [r for r in runs if r.label == label]
         drawn = decision_figures(members, f"{BENCHMARKS[benchmark]} {label}", out, slug(f"{benchmark}_{label}"))
         lines += [f"#### {label}", ""] + [f"![{what}]({name})" for what, name in drawn] + [""]
         lines += selection_table(members) + [""]
+        lines += decisions_by_environment(members) + [""]
         if not args.per_run:
             continue
         # Named by the path below the directory all runs share, so names stay short and distinct.
@@ -1143,6 +1150,45 @@ def selection_table(runs: list[Run]) -> list[str]:
                      + ", ".join(f"{v:g}: {n:,}" for v, n in zip(values, counts)) + " |")
     return lines + ["", f"Pooled over {len(counted)} runs. Runs that credited every value exactly equally often "
                         f"(a strict rotation): {rotations} of {len(counted)}."]
+
+
+def exploration_ratio(run: Run) -> float | None:
+    """How far UCB's choices were the bonus's rather than the utilities': over the second half of the run, the
+    median of the clusters' mean bonus c·sqrt(ln i / N) divided by the spread (max - min) of their utilities in
+    the units the bound adds them in. Above 1 the bonus outweighs what separates the clusters (they are taken
+    in turn); well below 1 the bandit follows the utilities. None for other strategies or without the series."""
+    tags = [f"ultho/{kind}/{cluster}" for cluster in run.search_space or {} for kind in ("ucb", "bonus")]
+    if not tags or not all(tag in run.series for tag in tags) or len({len(run.series[t]) for t in tags}) != 1:
+        return None
+    ucb, bonus = (np.column_stack([run.series[t][:, 1] for t in tags[k::2]]) for k in (0, 1))
+    half = slice(len(ucb) // 2, None)
+    scaled_utility = (ucb - bonus)[half]
+    spread = scaled_utility.max(1) - scaled_utility.min(1)
+    ratio = bonus[half].mean(1) / np.where(spread > 0, spread, np.nan)
+    return float(np.nanmedian(ratio)) if np.isfinite(ratio).any() else None
+
+
+def decisions_by_environment(runs: list[Run]) -> list[str]:
+    """Per environment: each cluster's share of the credited selections (pooled over seeds, with the range over
+    the seeds) and the exploration ratio (median over the seeds)."""
+    counted = [r for r in runs if r.value_selections]
+    envs = sorted({r.env_id for r in counted})
+    if not envs:
+        return []
+    space = counted[0].search_space
+    lines = ["| environment | runs | " + " | ".join(f"{cluster} (%)" for cluster in space)
+             + " | bonus / utility spread |", "|---|---|" + "---|" * (len(space) + 1)]
+    for env in envs:
+        members = [r for r in counted if r.env_id == env]
+        counts = np.array([[sum(r.value_selections[cluster]) for cluster in space] for r in members], dtype=float)
+        shares = counts / counts.sum(1, keepdims=True)
+        pooled = counts.sum(0) / counts.sum()
+        ratios = [x for x in map(exploration_ratio, members) if x is not None]
+        lines.append(f"| {env} | {len(members)} | "
+                     + " | ".join(f"{100 * p:.1f} ({100 * lo:.0f}–{100 * hi:.0f})"
+                                  for p, lo, hi in zip(pooled, shares.min(0), shares.max(0)))
+                     + f" | {f'{np.median(ratios):.2f}' if ratios else '–'} |")
+    return lines
 
 
 def write_report(study: Study, args: argparse.Namespace) -> None:

@@ -11,8 +11,9 @@ import pytest
 
 from helpers import run, run_concurrently, scalars, summary
 from hpo_study import SCRIPT_ARGS
-from ultho_report import (PROCGEN_EASY, PYBULLET_REFERENCE, REFERENCES, Efficiency, aggregate_with_interval,
-                          coverage_groups, game_of, normalized, raw_score, reference_of, steps_to_threshold)
+from ultho_report import (PROCGEN_EASY, PYBULLET_REFERENCE, REFERENCES, Efficiency, Run, aggregate_with_interval,
+                          coverage_groups, decisions_by_environment, exploration_ratio, game_of, normalized, raw_score,
+                          reference_of, steps_to_threshold)
 
 REPORT = "ultho_report.py"
 SCRIPT = "ppo_ultho_minigrid.py"
@@ -357,8 +358,6 @@ def test_steps_to_threshold_by_hand():
 
 
 def test_methods_are_aggregated_only_over_the_environments_they_all_cover():
-    from ultho_report import Run
-
     def entry(label, env):
         run = Run("p", "minigrid", env, "ppo", None, None, 1, 1, 0.5, score=0.5)
         run.label = label
@@ -425,3 +424,27 @@ def test_every_reference_environment_is_normalized_by_its_own_references(env_id)
     assert game_of(env_id, REFERENCES[benchmark]).lower() in env_id.lower().replace("-", "")
     assert normalized(benchmark, env_id, high) == 1.0
     assert normalized(benchmark, env_id, low) == 0.0
+
+
+def test_exploration_ratio_and_decisions_by_environment_by_hand():
+    space = {"learning_rate": [1e-3, 2e-3], "vf_coef": [0.5, 1.0]}
+
+    def ucb_run(env: str, selections: dict, ucb: list, bonus: list) -> Run:
+        steps = np.arange(1, len(ucb) + 1, dtype=float)
+        series = {f"ultho/{kind}/{cluster}": np.column_stack([steps, [row[k] for row in rows]])
+                  for kind, rows in (("ucb", ucb), ("bonus", bonus)) for k, cluster in enumerate(space)}
+        return Run("p", "pybullet", env, "ultho", 5.0, 10, 1, 1, 0.0, series=series, search_space=space,
+                   value_selections=selections)
+
+    # Second half (rows 2 and 3): utilities 3-0.5 and 1-0.5 (spread 2, mean bonus 0.5: 0.25), then equal
+    # utilities (no spread: left out). The first half, whatever it holds, does not count.
+    run = ucb_run("A", {"learning_rate": [1, 2], "vf_coef": [3, 4]},
+                  ucb=[[100, 0], [0, 100], [3, 1], [2, 2]], bonus=[[9, 9], [9, 9], [0.5, 0.5], [1, 1]])
+    assert exploration_ratio(run) == pytest.approx(0.25)
+    other = ucb_run("A", {"learning_rate": [5, 5], "vf_coef": [0, 0]},
+                    ucb=[[0, 0], [0, 0], [4, 0], [4, 0]], bonus=[[1, 1], [1, 1], [1, 1], [2, 2]])
+    assert exploration_ratio(other) == pytest.approx(0.375)  # 1/4 and 2/4
+    lines = decisions_by_environment([run, other])
+    # Pooled: learning_rate 3 + 10 of 20, vf_coef 7 of 20; per run 30%-100% and 0%-70%; median ratio 0.3125.
+    assert lines[2] == "| A | 2 | 65.0 (30–100) | 35.0 (0–70) | 0.31 |"
+    assert exploration_ratio(Run("p", "pybullet", "A", "ultho", 5.0, 10, 1, 1, 0.0, search_space=space)) is None
