@@ -274,7 +274,9 @@ class Study:
             return relays, studies, runs
         try:
             grid = sweep["grid"]
-            if "ultho" in grid["methods"] or "relay" in grid["methods"]:
+            # The robustness figure is the paper's bandit over (c, W); a grid of other variants is not a point of it.
+            paper_bandit = PAPER_VARIANT in grid.get("variants", [PAPER_VARIANT])
+            if paper_bandit and ("ultho" in grid["methods"] or "relay" in grid["methods"]):
                 points = grid.get("points") or [[c, w] for c in grid["c"] for w in grid["window"]]
                 for script in grid["scripts"]:
                     for env_id in grid["env_ids"]:

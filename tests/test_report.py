@@ -11,7 +11,7 @@ import pytest
 
 from helpers import run, run_concurrently, scalars, summary
 from hpo_study import SCRIPT_ARGS
-from ultho_report import (PROCGEN_EASY, PYBULLET_REFERENCE, REFERENCES, Efficiency, Run, aggregate_with_interval,
+from ultho_report import (PROCGEN_EASY, PYBULLET_REFERENCE, REFERENCES, Efficiency, Run, Study, aggregate_with_interval,
                           coverage_groups, decisions_by_environment, exploration_ratio, game_of, normalized, raw_score,
                           reference_of, steps_to_threshold)
 
@@ -448,3 +448,17 @@ def test_exploration_ratio_and_decisions_by_environment_by_hand():
     # Pooled: learning_rate 3 + 10 of 20, vf_coef 7 of 20; per run 30%-100% and 0%-70%; median ratio 0.3125.
     assert lines[2] == "| A | 2 | 65.0 (30–100) | 35.0 (0–70) | 0.31 |"
     assert exploration_ratio(Run("p", "pybullet", "A", "ultho", 5.0, 10, 1, 1, 0.0, search_space=space)) is None
+
+
+@pytest.mark.parametrize("variants, points", [(None, {(5.0, 10)}), (["ucb:level:none", "ts:level:none"], {(5.0, 10)}),
+                                              (["ucb:level:running"], set())])
+def test_only_the_papers_bandit_makes_a_sweep_grid_point_of_the_robustness_figure(tmp_path, variants, points):
+    grid = {"scripts": ["ppo_ultho_pybullet.py"], "env_ids": ["HopperBulletEnv-v0"], "methods": ["ultho"],
+            "c": [5.0], "window": [10], "points": [[5.0, 10]], "seeds": [1]}
+    if variants is not None:  # a sweep.json without the key ran the paper's bandit
+        grid["variants"] = variants
+    (tmp_path / "sweep").mkdir()
+    (tmp_path / "sweep" / "sweep.json").write_text(json.dumps({"format": 1, "grid": grid, "runs": []}))
+    study = Study()
+    study.discover([str(tmp_path)])
+    assert study.grid.get(("pybullet", "HopperBulletEnv-v0"), set()) == points
