@@ -1111,13 +1111,16 @@ def benchmark_section(study: Study, benchmark: str, args: argparse.Namespace, ro
                   "half of each run, the median of the clusters' mean UCB bonus c·sqrt(ln i / N) divided by the "
                   "spread of their utilities in the bound's units, the median over the runs; above 1 the bonus "
                   "outweighs what separates the clusters and they are taken in turn, well below 1 the bandit "
-                  "follows the utilities (– for strategies without a bonus).", ""]
+                  "follows the utilities (– for strategies without a bonus). Last, per run, the value each cluster "
+                  "held for the most iterations and the share of the iterations it held it (a cluster the bandit "
+                  "stopped choosing keeps the value it was last given), beside the run's final score.", ""]
     for label in ultho_methods:
         members = [r for r in runs if r.label == label]
         drawn = decision_figures(members, f"{BENCHMARKS[benchmark]} {label}", out, slug(f"{benchmark}_{label}"))
         lines += [f"#### {label}", ""] + [f"![{what}]({name})" for what, name in drawn] + [""]
         lines += selection_table(members) + [""]
         lines += decisions_by_environment(members) + [""]
+        lines += settings_in_force(members) + [""]
         if not args.per_run:
             continue
         # Named by the path below the directory all runs share, so names stay short and distinct.
@@ -1190,6 +1193,26 @@ def decisions_by_environment(runs: list[Run]) -> list[str]:
                      + " | ".join(f"{100 * p:.1f} ({100 * lo:.0f}–{100 * hi:.0f})"
                                   for p, lo, hi in zip(pooled, shares.min(0), shares.max(0)))
                      + f" | {f'{np.median(ratios):.2f}' if ratios else '–'} |")
+    return lines
+
+
+def settings_in_force(runs: list[Run]) -> list[str]:
+    """Per run, the value each cluster held for the most logged iterations (``hparams/*``) and that share: a
+    cluster the bandit stopped choosing keeps the value it was last given."""
+    logged = sorted((r for r in runs if r.search_space and all(f"hparams/{c}" in r.series for c in r.search_space)),
+                    key=lambda r: (r.env_id, r.seed))
+    if not logged:
+        return []
+    space = logged[0].search_space
+    lines = ["| environment | seed | " + " | ".join(space) + " | final score |",
+             "|---|---|" + "---|" * (len(space) + 1)]
+    for run in logged:
+        cells = []
+        for cluster in space:
+            values, counts = np.unique(run.series[f"hparams/{cluster}"][:, 1], return_counts=True)
+            cells.append(f"{values[counts.argmax()]:g} ({100 * counts.max() / counts.sum():.0f}%)")
+        lines.append(f"| {run.env_id} | {run.seed} | " + " | ".join(cells)
+                     + f" | {number(run.raw_score) if run.raw_score is not None else '–'} |")
     return lines
 
 

@@ -13,7 +13,7 @@ from helpers import run, run_concurrently, scalars, summary
 from hpo_study import SCRIPT_ARGS
 from ultho_report import (PROCGEN_EASY, PYBULLET_REFERENCE, REFERENCES, Efficiency, Run, Study, aggregate_with_interval,
                           coverage_groups, decisions_by_environment, exploration_ratio, game_of, normalized, raw_score,
-                          reference_of, steps_to_threshold)
+                          reference_of, settings_in_force, steps_to_threshold)
 
 REPORT = "ultho_report.py"
 SCRIPT = "ppo_ultho_minigrid.py"
@@ -462,3 +462,13 @@ def test_only_the_papers_bandit_makes_a_sweep_grid_point_of_the_robustness_figur
     study = Study()
     study.discover([str(tmp_path)])
     assert study.grid.get(("pybullet", "HopperBulletEnv-v0"), set()) == points
+
+
+def test_settings_in_force_give_each_clusters_longest_held_value_by_hand():
+    space = {"learning_rate": [1e-3, 2e-3], "vf_coef": [0.5, 1.0]}
+    steps = np.arange(1.0, 5.0)
+    run = Run("p", "pybullet", "A", "ultho", 5.0, 10, 2, 4, 1234.5, search_space=space, series={
+        "hparams/learning_rate": np.column_stack([steps, [1e-3, 2e-3, 2e-3, 2e-3]]),
+        "hparams/vf_coef": np.column_stack([steps, [0.5, 0.5, 1.0, 1.0]])})  # a tie: the smaller value
+    assert settings_in_force([run])[2] == "| A | 2 | 0.002 (75%) | 0.5 (50%) | 1,234 |"
+    assert settings_in_force([Run("p", "pybullet", "A", "ultho", 5.0, 10, 2, 4, 1.0, search_space=space)]) == []
