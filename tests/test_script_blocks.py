@@ -9,7 +9,7 @@ import pytest
 
 from helpers import REPO
 
-PPO_SCRIPTS = ("ppo_ultho_minigrid.py", "ppo_ultho_pybullet.py", "ppo_ultho_atari.py")
+PPO_SCRIPTS = ("ppo_ultho_minigrid.py", "ppo_ultho_atari.py", "ppo_ultho_procgen.py", "ppo_ultho_pybullet.py")
 SAC_SCRIPT = "sac_ultho_dmc.py"
 BANNER = "# ---- Bookkeeping: input, checkpoints, logging, summary (not the algorithm) ----"
 
