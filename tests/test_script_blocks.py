@@ -20,7 +20,8 @@ PPO_BLOCKS = ("Settings", "UsageError", "parse_args", "checked_search_space", "r
               "is_run_of_this_script", "restore", "rng_state", "restore_rng", "open_run_dir", "save_checkpoint",
               "stop_non_finite", "log_iteration", "log_bandit", "report_progress", "atomic_write_bytes",
               "atomic_save_json", MAIN_GUARD)
-SAC_BLOCKS = ("UsageError", "parse_args", "load_checkpoint", MAIN_GUARD)
+SAC_BLOCKS = ("UsageError", "parse_args", "resumed_args", "load_checkpoint", "is_run_of_this_script", "open_run_dir",
+              "stop_non_finite", "report_progress", "atomic_write_bytes", "atomic_save_json", MAIN_GUARD)
 
 # What each PPO script's bookkeeping section holds at least (after the banner, in any order).
 BOOKKEEPING = ("UsageError", "parse_args", "validate", "check_setting", "checked_search_space", "load_checkpoint",
