@@ -930,9 +930,8 @@ def write_summary(run_dir: str, args: Args, config: dict, settings: Settings, tu
     }
     atomic_save_json(os.path.join(run_dir, "summary.json"), summary)
     if not args.quiet:
-        score = summary["final_score"]
         print(f"[{SCRIPT}] done: {global_step} steps in {wall_time:.0f}s, final score "
-              f"{'-' if score is None else f'{score:.3f}'}, summary in {run_dir}/summary.json", flush=True)
+              f"{'-' if final_score is None else f'{final_score:.3f}'}, summary in {run_dir}/summary.json", flush=True)
 
 
 def atomic_write_bytes(path: str, data: bytes) -> None:

@@ -803,6 +803,7 @@ def write_summary(run_dir: str, args: Args, config: dict, settings: Settings, tu
                   ultho_seconds: float, rollout_seconds: float, update_seconds: float, device: torch.device,
                   recent_returns: deque, recent_lengths: deque, eval_returns: list[float]) -> None:
     """summary.json (docs/scripts.md lists its keys), written atomically when the run ends."""
+    final_score = float(np.mean(recent_returns)) if recent_returns else None
     summary = {
         "script": SCRIPT,
         "env_id": args.env_id,
@@ -822,7 +823,7 @@ def write_summary(run_dir: str, args: Args, config: dict, settings: Settings, tu
         "device": str(device),
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
         "peak_cuda_mb": torch.cuda.max_memory_allocated(device) / 2**20 if device.type == "cuda" else None,
-        "final_score": float(np.mean(recent_returns)) if recent_returns else None,
+        "final_score": final_score,
         "final_score_episodes": len(recent_returns),
         "final_episode_length": float(np.mean(recent_lengths)) if recent_lengths else None,
         "eval": {
@@ -836,9 +837,8 @@ def write_summary(run_dir: str, args: Args, config: dict, settings: Settings, tu
     }
     atomic_save_json(os.path.join(run_dir, "summary.json"), summary)
     if not args.quiet:
-        score = summary["final_score"]
         print(f"[{SCRIPT}] done: {global_step} steps in {wall_time:.0f}s, final score "
-              f"{'-' if score is None else f'{score:.3f}'}, summary in {run_dir}/summary.json", flush=True)
+              f"{'-' if final_score is None else f'{final_score:.3f}'}, summary in {run_dir}/summary.json", flush=True)
 
 def atomic_write_bytes(path: str, data: bytes) -> None:
     tmp = f"{path}.tmp"

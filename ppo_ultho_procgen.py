@@ -623,7 +623,6 @@ def main(args: Args) -> None:
     wall_time = elapsed_before + time.time() - start_time - eval_seconds
     eval_returns, eval_level_seeds = (evaluate(agent, args, device, num_iterations) if args.eval_episodes > 0
                                       else ([], []))
-    train_score = float(np.mean(recent_returns)) if recent_returns else None
     test_score = float(np.mean(eval_returns)) if eval_returns else None
     if eval_returns:
         writer.add_scalar("eval/return", test_score, global_step)
@@ -632,7 +631,7 @@ def main(args: Args) -> None:
     writer.close()
     write_summary(run_dir, args, config, settings, tuned, bandit, global_step, num_iterations, wall_time,
                   ultho_seconds, rollout_seconds, update_seconds, device, recent_returns, recent_lengths,
-                  eval_returns, eval_level_seeds, train_score, test_score)
+                  eval_returns, eval_level_seeds, test_score)
 
 
 def evaluate(agent: Agent, args: Args, device: torch.device, iteration: int) -> tuple[list[float], list[int]]:
@@ -933,9 +932,10 @@ def write_summary(run_dir: str, args: Args, config: dict, settings: Settings, tu
                   bandit: Optional[ULTHO], global_step: int, num_iterations: int, wall_time: float,
                   ultho_seconds: float, rollout_seconds: float, update_seconds: float, device: torch.device,
                   recent_returns: deque, recent_lengths: deque, eval_returns: list[float],
-                  eval_level_seeds: list[int], train_score: Optional[float], test_score: Optional[float]) -> None:
+                  eval_level_seeds: list[int], test_score: Optional[float]) -> None:
     """summary.json (docs/scripts.md lists its keys, docs/procgen.md the train and test scores), written
-    atomically when the run ends."""
+    atomically when the run ends. The final score is the training score."""
+    final_score = float(np.mean(recent_returns)) if recent_returns else None
     summary = {
         "script": SCRIPT,
         "env_id": args.env_id,
@@ -954,7 +954,9 @@ def write_summary(run_dir: str, args: Args, config: dict, settings: Settings, tu
         "update_seconds": update_seconds,
         "device": str(device),
         "precision": args.precision,
-        "final_score": train_score,
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "peak_cuda_mb": torch.cuda.max_memory_allocated(device) / 2**20 if device.type == "cuda" else None,
+        "final_score": final_score,
         "final_score_episodes": len(recent_returns),
         "final_episode_length": float(np.mean(recent_lengths)) if recent_lengths else None,
         "eval": {
@@ -964,19 +966,17 @@ def write_summary(run_dir: str, args: Args, config: dict, settings: Settings, tu
             "returns": eval_returns,
             "level_seeds": eval_level_seeds,
         },
-        "train_score": train_score,
+        "train_score": final_score,
         "test_score": test_score,
-        "normalized_train_score": normalized_score(args.env_id, train_score),
+        "normalized_train_score": normalized_score(args.env_id, final_score),
         "normalized_test_score": normalized_score(args.env_id, test_score),
-        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
-        "peak_cuda_mb": torch.cuda.max_memory_allocated(device) / 2**20 if device.type == "cuda" else None,
         "settings_in_force": {name: getattr(settings, name) for name in tuned},
         "bandit": None if bandit is None else bandit.summary(args.ultho_utility),
     }
     atomic_save_json(os.path.join(run_dir, "summary.json"), summary)
     if not args.quiet:
         print(f"[{SCRIPT}] done: {global_step} steps in {wall_time:.0f}s, train score "
-              f"{'-' if train_score is None else f'{train_score:.3f}'}, test score "
+              f"{'-' if final_score is None else f'{final_score:.3f}'}, test score "
               f"{'-' if test_score is None else f'{test_score:.3f}'}, summary in {run_dir}/summary.json", flush=True)
 
 
