@@ -64,6 +64,7 @@ SEARCH_SPACE = {
 TUNABLE = ("learning_rate", "minibatch_size", "vf_coef", "ent_coef", "update_epochs", "clip_coef", "max_grad_norm")
 """Settings a cluster may override; each is read afresh by every PPO update."""
 
+
 @dataclass
 class Args:
     exp_name: str = SCRIPT
@@ -160,6 +161,7 @@ class Args:
         if self.run_name is None:  # resolved once, when the command line is parsed: every later use agrees
             self.run_name = f"{self.env_id}__{self.exp_name}__{self.seed}__{int(time.time())}"
 
+
 @dataclass
 class Settings:
     """The settings in force: the TUNABLE ones, which ULTHO changes one at a time and every PPO update reads
@@ -177,6 +179,7 @@ class Settings:
     @classmethod
     def from_args(cls, args: Args) -> "Settings":
         return cls(**{name: getattr(args, name) for name in TUNABLE})
+
 
 def make_env(env_id: str) -> gym.Env:
     return ImgObsWrapper(gym.make(env_id))
@@ -254,6 +257,7 @@ def fast_gen_obs(self: MiniGridEnv) -> dict:
     image = np.frombuffer(bytearray(itertools.chain.from_iterable(codes)), dtype=np.uint8).reshape(size, size, 3)
     return {"image": image, "direction": self.agent_dir, "mission": self.mission}
 
+
 def layer_init(layer: nn.Module, std: float = np.sqrt(2), bias_const: float = 0.0) -> nn.Module:
     torch.nn.init.orthogonal_(layer.weight, std)
     torch.nn.init.constant_(layer.bias, bias_const)
@@ -288,6 +292,7 @@ def sample(log_probs: torch.Tensor) -> torch.Tensor:
     race) and costs less than half of torch.multinomial on these tiny batches."""
     return (log_probs.exp() / torch.empty_like(log_probs).exponential_()).argmax(-1)
 
+
 def ppo_loss(agent: Agent, args: Args, settings: Settings, obs: torch.Tensor, actions: torch.Tensor,
              old_logprobs: torch.Tensor, advantages: torch.Tensor, returns: torch.Tensor,
              old_values: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -316,6 +321,7 @@ def ppo_loss(agent: Agent, args: Args, settings: Settings, obs: torch.Tensor, ac
     entropy_loss = entropy.mean()
     loss = pg_loss - settings.ent_coef * entropy_loss + v_loss * settings.vf_coef
     return loss, torch.stack([pg_loss, v_loss, entropy_loss, old_approx_kl, approx_kl, clipfrac]).detach()
+
 
 def main(args: Args) -> None:
     space, checkpoint = validate(args)  # nothing is written or started before this returns
@@ -524,6 +530,7 @@ def main(args: Args) -> None:
                   ultho_seconds, rollout_seconds, update_seconds, device, recent_returns, recent_lengths,
                   eval_returns)
 
+
 def evaluate(agent: Agent, args: Args, device: torch.device) -> list[float]:
     """Returns of --eval-episodes fresh episodes (seeds unused in training), one per environment, sampling
     the policy as in training."""
@@ -543,6 +550,7 @@ def evaluate(agent: Agent, args: Args, device: torch.device) -> list[float]:
         envs.close()
         returns += total.tolist()
     return returns
+
 
 # ---- Bookkeeping: input, checkpoints, logging, summary (not the algorithm) ----
 class UsageError(Exception):
@@ -569,6 +577,7 @@ def parse_args(argv: list[str] | None = None) -> Args:
                 blocks[-1].append(line)
         message = " ".join(blocks[1]) if len(blocks) > 1 and blocks[1] else "invalid arguments"
         raise UsageError(message) from None
+
 
 def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
     """Checks everything before any file is written or environment started; returns (space, checkpoint), the
@@ -643,6 +652,7 @@ def checked_search_space(args: Args, batch_size: int) -> dict[str, list]:
             check_setting(name, value, batch_size, f"--ultho-clusters {name}")
     return space
 
+
 def check_setting(name: str, value, batch_size: int, where: str) -> None:
     if name in ("minibatch_size", "update_epochs"):
         if not isinstance(value, int) or value <= 0:
@@ -654,6 +664,7 @@ def check_setting(name: str, value, batch_size: int, where: str) -> None:
             raise UsageError(f"{where}: {name} must be positive, got {value!r}")
     elif not (math.isfinite(value) and value >= 0):
         raise UsageError(f"{where}: {name} must be >= 0, got {value!r}")
+
 
 def resumed_args(args: Args, checkpoint: dict) -> Args:
     """The arguments of the run that --resume continues: its checkpoint's, but for --resume, --quiet, --cuda and
@@ -798,6 +809,7 @@ def report_progress(progress: tqdm, args: Args, iteration: int, num_iterations: 
         print(f"[{SCRIPT}] step {global_step}/{args.total_timesteps} ({100 * iteration // num_iterations}%) | "
               f"SPS {sps} | return {recent} | {choice_text}", flush=True)
 
+
 def write_summary(run_dir: str, args: Args, config: dict, settings: Settings, tuned: list[str],
                   bandit: Optional[ULTHO], global_step: int, num_iterations: int, wall_time: float,
                   ultho_seconds: float, rollout_seconds: float, update_seconds: float, device: torch.device,
@@ -839,6 +851,7 @@ def write_summary(run_dir: str, args: Args, config: dict, settings: Settings, tu
     if not args.quiet:
         print(f"[{SCRIPT}] done: {global_step} steps in {wall_time:.0f}s, final score "
               f"{'-' if final_score is None else f'{final_score:.3f}'}, summary in {run_dir}/summary.json", flush=True)
+
 
 def atomic_write_bytes(path: str, data: bytes) -> None:
     tmp = f"{path}.tmp"

@@ -92,6 +92,7 @@ OBS_CLIP = 10.0
 NORM_EPSILON = 1e-8
 """Added to the variance under the square root, as gymnasium's NormalizeObservation/NormalizeReward do."""
 
+
 @dataclass
 class Args:
     """PPO with ULTHO on PyBullet continuous control. Observations are normalized with a running mean and
@@ -193,6 +194,7 @@ class Args:
         if self.run_name is None:  # resolved once, when the command line is parsed: every later use agrees
             self.run_name = f"{self.env_id}__{self.exp_name}__{self.seed}__{int(time.time())}"
 
+
 @dataclass
 class Settings:
     """The settings in force: the TUNABLE ones, which ULTHO changes one at a time and every PPO update reads
@@ -210,6 +212,7 @@ class Settings:
     @classmethod
     def from_args(cls, args: Args) -> "Settings":
         return cls(**{name: getattr(args, name) for name in TUNABLE})
+
 
 def make_env(env_id: str) -> gym.Env:
     """A fresh environment, reset once to a fixed seed (a warm-up, see ReplayableEnvs). pybullet's
@@ -310,7 +313,6 @@ def normalize_obs(obs: np.ndarray, obs_rms: RunningMeanStd) -> np.ndarray:
     return np.clip((obs - obs_rms.mean) / np.sqrt(obs_rms.var + NORM_EPSILON), -OBS_CLIP, OBS_CLIP).astype(np.float32)
 
 
-
 def episode_seed(*key: int) -> int:
     """An environment seed drawn from the key (run seed, purpose, environment, episode): distinct streams for
     training and evaluation, and no episode shared between runs with neighbouring seeds."""
@@ -399,6 +401,7 @@ def ppo_loss(agent: Agent, args: Args, settings: Settings, obs: torch.Tensor, ac
         v_loss = 0.5 * ((newvalue - returns) ** 2).mean()
     loss = pg_loss - settings.ent_coef * entropy_loss + v_loss * settings.vf_coef
     return loss, torch.stack([pg_loss, v_loss, entropy_loss, old_approx_kl, approx_kl, clipfrac]).detach()
+
 
 def main(args: Args) -> None:
     space, checkpoint = validate(args)  # nothing is written or started before this returns
@@ -624,6 +627,7 @@ def main(args: Args) -> None:
                   ultho_seconds, rollout_seconds, update_seconds, device, recent_returns, recent_lengths,
                   eval_returns)
 
+
 def evaluate(agent: Agent, args: Args, device: torch.device, obs_rms: RunningMeanStd) -> list[float]:
     """Returns of --eval-episodes fresh episodes (seeds unused in training), one per environment, sampling
     the policy as in training, with the observation normalization's statistics frozen as training left them."""
@@ -674,6 +678,7 @@ def parse_args(argv: list[str] | None = None) -> Args:
                 blocks[-1].append(line)
         message = " ".join(blocks[1]) if len(blocks) > 1 and blocks[1] else "invalid arguments"
         raise UsageError(message) from None
+
 
 def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
     """Checks everything before any file is written or environment started; returns (space, checkpoint), the
@@ -730,6 +735,7 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
         if os.path.exists(run_dir) and not (args.init_from is not None and is_run_of_this_script(run_dir)):
             raise UsageError(f"run directory {run_dir} already exists: pass --resume {run_dir} or another --run-name")
     return space, checkpoint
+
 
 def check_env_id(env_id: str) -> None:
     """The environment must be registered and have a Box action space and a flat Box observation. Its spaces
@@ -922,6 +928,7 @@ def report_progress(progress: tqdm, args: Args, iteration: int, num_iterations: 
         print(f"[{SCRIPT}] step {global_step}/{args.total_timesteps} ({100 * iteration // num_iterations}%) | "
               f"SPS {sps} | return {recent} | {choice_text}", flush=True)
 
+
 def write_summary(run_dir: str, args: Args, config: dict, settings: Settings, tuned: list[str],
                   bandit: Optional[ULTHO], global_step: int, num_iterations: int, wall_time: float,
                   ultho_seconds: float, rollout_seconds: float, update_seconds: float, device: torch.device,
@@ -963,6 +970,7 @@ def write_summary(run_dir: str, args: Args, config: dict, settings: Settings, tu
     if not args.quiet:
         print(f"[{SCRIPT}] done: {global_step} steps in {wall_time:.0f}s, final score "
               f"{'-' if final_score is None else f'{final_score:.3f}'}, summary in {run_dir}/summary.json", flush=True)
+
 
 def atomic_write_bytes(path: str, data: bytes) -> None:
     tmp = f"{path}.tmp"
