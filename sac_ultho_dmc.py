@@ -169,6 +169,29 @@ class Args:
         the PPO scripts (hpo_baselines.py reads it)."""
         return self.ultho_interval // self.num_envs
 
+    def __post_init__(self) -> None:
+        if self.run_name is None:  # resolved once, when the command line is parsed: every later use agrees
+            self.run_name = f"{self.env_id}__{self.exp_name}__{self.seed}__{int(time.time())}"
+
+
+@dataclass
+class Settings:
+    """The settings in force: the TUNABLE ones, which ULTHO changes one at a time and every SAC update reads
+    afresh. They start as the command line's (``args`` itself is never changed), are saved in the checkpoint
+    and are summary.json's ``settings_in_force``."""
+
+    q_lr: float
+    policy_lr: float
+    batch_size: int
+    tau: float
+    gamma: float
+    policy_frequency: int
+    target_network_frequency: int
+
+    @classmethod
+    def from_args(cls, args: Args) -> "Settings":
+        return cls(**{name: getattr(args, name) for name in TUNABLE})
+
 
 # ---------------------------------------------------------------------- environments
 class DMCEnv(gym.Env):
@@ -391,11 +414,11 @@ class SAC:
                    torch.optim.Adam(critic.parameters(), lr=args.q_lr, fused=True),
                    torch.optim.Adam([log_alpha], lr=args.q_lr, fused=True) if args.autotune else None)
 
-    def apply_learning_rates(self, args: Args) -> None:
+    def apply_learning_rates(self, settings: Settings) -> None:
         """Puts the learning rates in force on the optimizers (q_lr also drives the entropy coefficient's, as in
         CleanRL)."""
-        for optimizer, lr in ((self.actor_optimizer, args.policy_lr), (self.q_optimizer, args.q_lr),
-                              (self.alpha_optimizer, args.q_lr)):
+        for optimizer, lr in ((self.actor_optimizer, settings.policy_lr), (self.q_optimizer, settings.q_lr),
+                              (self.alpha_optimizer, settings.q_lr)):
             if optimizer is not None:
                 for group in optimizer.param_groups:
                     group["lr"] = lr
@@ -422,7 +445,7 @@ class SAC:
         self.alpha.copy_(self.log_alpha.detach().exp() if args.autotune else torch.tensor([args.alpha]))
 
 
-def sac_update(sac: SAC, batch: torch.Tensor, update: int, args: Args, obs_size: int,
+def sac_update(sac: SAC, batch: torch.Tensor, update: int, settings: Settings, obs_size: int,
                action_size: int) -> tuple[torch.Tensor, Optional[torch.Tensor]]:
     """SAC update number ``update`` (1, 2, ...) on a batch of replay rows [obs, action, reward, terminated,
     next obs], CleanRL's: a critic step, every policy_frequency updates policy_frequency policy steps (each
@@ -440,7 +463,7 @@ def sac_update(sac: SAC, batch: torch.Tensor, update: int, args: Args, obs_size:
     with torch.no_grad():
         next_action, next_log_prob = sac.actor.sample(next_obs)
         next_q = torch.minimum(*sac.critic_target(torch.cat([next_obs, next_action], dim=1)))
-        target = reward + (1 - terminated) * args.gamma * (next_q - sac.alpha * next_log_prob)
+        target = reward + (1 - terminated) * settings.gamma * (next_q - sac.alpha * next_log_prob)
     q1, q2 = sac.critic(obs_action)
     qf1_loss, qf2_loss = F.mse_loss(q1, target), F.mse_loss(q2, target)
     sac.q_optimizer.zero_grad(set_to_none=True)
@@ -449,8 +472,8 @@ def sac_update(sac: SAC, batch: torch.Tensor, update: int, args: Args, obs_size:
     critic_stats = torch.stack([qf1_loss, qf2_loss, q1.mean(), q2.mean(), torch.minimum(q1, q2).mean()]).detach()
 
     actor_stats = None
-    if update % args.policy_frequency == 0:  # TD3's delayed update, compensated by policy_frequency steps
-        for _ in range(args.policy_frequency):
+    if update % settings.policy_frequency == 0:  # TD3's delayed update, compensated by policy_frequency steps
+        for _ in range(settings.policy_frequency):
             action, log_prob = sac.actor.sample(obs)
             q_pi = torch.minimum(*sac.critic(torch.cat([obs, action], dim=1), detached=True))
             actor_loss = (sac.alpha * log_prob - q_pi).mean()
@@ -468,9 +491,9 @@ def sac_update(sac: SAC, batch: torch.Tensor, update: int, args: Args, obs_size:
                 sac.alpha.copy_(sac.log_alpha.detach().exp())
         actor_stats = torch.stack([actor_loss, alpha_loss]).detach()
 
-    if update % args.target_network_frequency == 0:
+    if update % settings.target_network_frequency == 0:
         with torch.no_grad():  # target <- target + tau * (param - target), all twelve tensors in one call
-            torch._foreach_lerp_(list(sac.critic_target.parameters()), list(sac.critic.parameters()), args.tau)
+            torch._foreach_lerp_(list(sac.critic_target.parameters()), list(sac.critic.parameters()), settings.tau)
     return critic_stats, actor_stats
 
 
@@ -510,21 +533,23 @@ class IntervalStats:
 # ---------------------------------------------------------------------- the training loop
 def main(args: Args) -> None:
     space, checkpoint = validate(args)  # nothing is written or started before this returns
+    resumed = args.resume is not None
+    if resumed:  # the run goes on with its own arguments
+        args = resumed_args(args, checkpoint)
 
     T = args.ultho_interval
     num_iterations = args.total_timesteps // T
-    resumed = args.resume is not None
     # The run's settings before ULTHO changes any; a resumed run keeps its original ones.
     config = checkpoint["config"] if resumed else dataclasses.asdict(args)
-    run_dir = args.resume if resumed else os.path.join(args.runs_dir, run_name(args))
+    run_dir = args.resume if resumed else os.path.join(args.runs_dir, args.run_name)
     checkpoint_path = os.path.join(run_dir, "checkpoint.pt")
-    quiet = args.quiet
 
     random.seed(args.seed)
     np.random.seed(args.seed)
     torch.manual_seed(args.seed)
     torch.backends.cudnn.deterministic = args.torch_deterministic
-    torch.set_num_threads(args.torch_threads)
+    if args.torch_threads > 0:  # 0: torch's own default, one thread per core
+        torch.set_num_threads(args.torch_threads)
     device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
     action_rng = np.random.default_rng(args.seed)  # the random actions before learning starts
 
@@ -532,6 +557,7 @@ def main(args: Args) -> None:
                    credit=args.ultho_credit, scale=args.ultho_scale, seed=args.seed,
                    exp3_eta=args.ultho_exp3_eta) if args.ultho else None
     tuned = list(space) if space is not None else list(SEARCH_SPACE)
+    settings = Settings.from_args(args)  # the settings in force, which ULTHO changes
 
     envs = (ReplayableEnvs(args.env_id, args.num_envs, (args.seed, 0)) if checkpoint is None
             else ReplayableEnvs.from_state_dict(args.env_id, checkpoint["envs"]))
@@ -561,8 +587,7 @@ def main(args: Args) -> None:
         if resumed:  # --init-from keeps this command line's settings and starts its own bandit
             if bandit is not None:
                 bandit.load_state_dict(checkpoint["bandit"])
-            for name, value in checkpoint["settings"].items():
-                setattr(args, name, value)
+            settings = Settings(**checkpoint["settings"])
             last_utility = checkpoint["last_utility"]
         position, filled = checkpoint["replay"]["position"], checkpoint["replay"]["filled"]
         storage[:filled] = checkpoint["replay"]["rows"].to(device)
@@ -576,20 +601,11 @@ def main(args: Args) -> None:
         # --init-from with another seed (a PBT trial copying another) draws from its own seed from here on.
         if resumed or checkpoint["config"]["seed"] == args.seed:
             restore_rng(checkpoint["rng"], device, action_rng)
-    sac.apply_learning_rates(args)  # the optimizers' saved state carries the rates they had
-
-    os.makedirs(run_dir, exist_ok=True)
-    if not resumed and os.path.exists(os.path.join(run_dir, "summary.json")):
-        os.remove(os.path.join(run_dir, "summary.json"))  # --init-from in place: the run is no longer finished
-    # purge_step drops events a killed process logged after its last checkpoint.
-    writer = SummaryWriter(run_dir, purge_step=global_step + 1 if checkpoint is not None else None)
-    if not resumed:
-        writer.add_text("hyperparameters",
-                        "|param|value|\n|-|-|\n" + "\n".join(f"|{k}|{v}|" for k, v in config.items()))
+    sac.apply_learning_rates(settings)  # the optimizers' saved state carries the rates they had
+    writer = open_run_dir(run_dir, config, checkpoint, resumed)
 
     progress = tqdm(total=args.total_timesteps, initial=global_step, unit="step", dynamic_ncols=True,
-                    disable=quiet or not sys.stderr.isatty())
-    report_every = max(1, num_iterations // 20)
+                    disable=args.quiet or not sys.stderr.isatty())
     start_time, start_step = time.time(), global_step
     for iteration in range(start_iteration, num_iterations + 1):
         # 1. ULTHO chooses a cluster and a value for this interval's updates (if it has any).
@@ -600,11 +616,11 @@ def main(args: Args) -> None:
                 last_utility = 0.0
                 if filled:
                     with torch.no_grad():
-                        rows = storage[torch.randint(filled, (args.batch_size,), device=device)]
+                        rows = storage[torch.randint(filled, (settings.batch_size,), device=device)]
                         last_utility = torch.minimum(*sac.critic(rows[:, :obs_size + action_size])).mean().item()
             cluster, choice = bandit.select(before=last_utility)
-            setattr(args, cluster, choice)
-            sac.apply_learning_rates(args)
+            setattr(settings, cluster, choice)
+            sac.apply_learning_rates(settings)
             selected = bandit.scalars()  # the bounds this choice maximised, logged below
             ultho_seconds += time.perf_counter() - tick
 
@@ -620,7 +636,8 @@ def main(args: Args) -> None:
                 with torch.no_grad():
                     actions = sac.actor.sample(torch.from_numpy(next_obs).to(device))[0].cpu().numpy()
                 if not np.isfinite(actions).all():  # diverged networks: stop before the physics is given NaN
-                    stop_non_finite("action", iteration, global_step, args, tuned, checkpoint_path, progress, writer)
+                    stop_non_finite("action", iteration, global_step, settings, tuned, checkpoint_path, progress,
+                                    writer)
             obs = next_obs
             next_obs, final_obs, rewards, terminated, truncated = envs.step(actions)
             rows = np.concatenate([obs, actions, rewards[:, None], terminated[:, None], final_obs], axis=1)
@@ -640,15 +657,15 @@ def main(args: Args) -> None:
 
             if global_step > args.learning_starts:
                 num_updates += 1
-                batch = storage[torch.randint(filled, (args.batch_size,), device=device)]
-                interval.add(batch.shape[0], *sac_update(sac, batch, num_updates, args, obs_size, action_size))
+                batch = storage[torch.randint(filled, (settings.batch_size,), device=device)]
+                interval.add(batch.shape[0], *sac_update(sac, batch, num_updates, settings, obs_size, action_size))
         recent_returns.extend(iteration_returns)
         recent_lengths.extend(iteration_lengths)
 
         # 3. The interval's statistics, and ULTHO's credit: the mean over its batches of each batch's mean min-Q.
         stats = interval.means()
         if not all(map(math.isfinite, stats.values())):
-            stop_non_finite("loss", iteration, global_step, args, tuned, checkpoint_path, progress, writer)
+            stop_non_finite("loss", iteration, global_step, settings, tuned, checkpoint_path, progress, writer)
         if selected is not None:
             tick = time.perf_counter()
             credit = stats["min_qf_values"]
@@ -675,7 +692,7 @@ def main(args: Args) -> None:
             writer.add_scalar("losses/qf_loss", (stats["qf1_loss"] + stats["qf2_loss"]) / 2, global_step)
             writer.add_scalar("losses/alpha", sac.alpha.item(), global_step)
         for name in tuned:
-            writer.add_scalar(f"hparams/{name}", getattr(args, name), global_step)
+            writer.add_scalar(f"hparams/{name}", getattr(settings, name), global_step)
         if selected is not None:
             tick = time.perf_counter()
             selected["ultho/credit"] = credit
@@ -684,19 +701,14 @@ def main(args: Args) -> None:
                 Summary.Value(tag=tag, simple_value=float(x)) for tag, x in selected.items()]), global_step)
             ultho_seconds += time.perf_counter() - tick
 
-        recent = f"{np.mean(recent_returns):.3g}" if recent_returns else "-"
-        choice_text = (f"{cluster}={format_value(choice)}" if selected is not None else
-                       "fixed" if bandit is None else "random actions")
-        progress.update(global_step - progress.n)
-        progress.set_postfix_str(f"SPS {sps} | return {recent} | {choice_text}", refresh=False)
-        if progress.disable and not quiet and (iteration % report_every == 0 or iteration == num_iterations):
-            print(f"[{SCRIPT}] step {global_step}/{args.total_timesteps} ({100 * iteration // num_iterations}%) | "
-                  f"SPS {sps} | return {recent} | {choice_text}", flush=True)
+        report_progress(progress, args, iteration, num_iterations, global_step, sps, recent_returns,
+                        f"{cluster}={format_value(choice)}" if selected is not None else
+                        "fixed" if bandit is None else "random actions")
 
         if iteration % args.checkpoint_every == 0 or iteration == num_iterations:
             save_checkpoint(checkpoint_path, {
                 "script": SCRIPT, "format": CHECKPOINT_FORMAT, "config": config,
-                "settings": {name: getattr(args, name) for name in TUNABLE},
+                "settings": dataclasses.asdict(settings),
                 "iteration": iteration, "global_step": global_step, "num_updates": num_updates,
                 "elapsed": elapsed_before + time.time() - start_time, "ultho_seconds": ultho_seconds,
                 "sac": sac.state_dict(), "bandit": bandit.state_dict() if bandit is not None else None,
@@ -715,8 +727,8 @@ def main(args: Args) -> None:
     if eval_returns:
         writer.add_scalar("eval/return", float(np.mean(eval_returns)), global_step)
     writer.close()
-    write_summary(run_dir, args, config, bandit, tuned, global_step, num_iterations, wall_time, ultho_seconds,
-                  device, recent_returns, recent_lengths, eval_returns)
+    write_summary(run_dir, args, config, settings, tuned, bandit, global_step, num_iterations, wall_time,
+                  ultho_seconds, device, recent_returns, recent_lengths, eval_returns)
 
 
 def evaluate(actor: Actor, args: Args, device: torch.device) -> list[float]:
@@ -739,7 +751,7 @@ def evaluate(actor: Actor, args: Args, device: torch.device) -> list[float]:
     return returns
 
 
-# ---------------------------------------------------------------------- bookkeeping: input, checkpoints, summary
+# ---- Bookkeeping: input, checkpoints, logging, summary (not the algorithm) ----
 class UsageError(Exception):
     """Bad input: reported as one line on stderr with exit status 2."""
 
@@ -816,6 +828,13 @@ def checked_search_space(args: Args) -> dict[str, list]:
     return space
 
 
+def resumed_args(args: Args, checkpoint: dict) -> Args:
+    """The arguments of the run that --resume continues: its checkpoint's, but for --resume, --quiet, --cuda and
+    --torch-threads, which come from this command line."""
+    return dataclasses.replace(Args(**checkpoint["config"]), resume=args.resume, quiet=args.quiet, cuda=args.cuda,
+                               torch_threads=args.torch_threads)
+
+
 def load_checkpoint(run_dir: str, flag: str) -> dict:
     path = os.path.join(run_dir, "checkpoint.pt")
     if not os.path.isfile(path):
@@ -839,10 +858,7 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
         raise UsageError("--resume and --init-from exclude each other: --resume continues a run with its own settings")
     if args.resume is not None:
         checkpoint = load_checkpoint(args.resume, "--resume")
-        resumed = Args(**checkpoint["config"])
-        resumed.resume, resumed.quiet, resumed.cuda = args.resume, args.quiet, args.cuda
-        resumed.torch_threads = args.torch_threads
-        args.__dict__.update(resumed.__dict__)
+        args = resumed_args(args, checkpoint)  # what is checked below is what the run will use
     elif args.init_from is not None:
         checkpoint = load_checkpoint(args.init_from, "--init-from")
         source = checkpoint["config"]
@@ -855,9 +871,11 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
             raise UsageError(f"--total-timesteps {args.total_timesteps}: the checkpoint of --init-from "
                              f"{args.init_from} is already at step {checkpoint['global_step']}")
     check_env_id(args.env_id)
-    for name in ("num_envs", "total_timesteps", "buffer_size", "ultho_interval", "checkpoint_every", "torch_threads"):
+    for name in ("num_envs", "total_timesteps", "buffer_size", "ultho_interval", "checkpoint_every"):
         if getattr(args, name) <= 0:
             raise UsageError(f"--{name.replace('_', '-')} must be positive, got {getattr(args, name)}")
+    if args.torch_threads < 0:
+        raise UsageError(f"--torch-threads must be >= 0 (0: one per core), got {args.torch_threads}")
     for name in ("learning_starts", "eval_episodes"):
         if getattr(args, name) < 0:
             raise UsageError(f"--{name.replace('_', '-')} must be >= 0, got {getattr(args, name)}")
@@ -882,9 +900,9 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
         if not (math.isfinite(args.ultho_exp3_eta) and args.ultho_exp3_eta > 0):
             raise UsageError(f"--ultho-exp3-eta must be a finite number > 0, got {args.ultho_exp3_eta}")
     if args.resume is None:
-        if os.sep in run_name(args) or run_name(args) in ("", ".", ".."):
+        if os.sep in args.run_name or args.run_name in ("", ".", ".."):
             raise UsageError(f"--run-name {args.run_name!r} is not a plain directory name")
-        run_dir = os.path.join(args.runs_dir, run_name(args))
+        run_dir = os.path.join(args.runs_dir, args.run_name)
         # --init-from may continue a run of this script in its own directory (its logs go on from the checkpoint).
         if os.path.exists(run_dir) and not (args.init_from is not None and (
                 os.path.abspath(run_dir) == os.path.abspath(args.init_from) or is_run_of_this_script(run_dir))):
@@ -898,12 +916,6 @@ def is_run_of_this_script(run_dir: str) -> bool:
         return checkpoint["script"] == SCRIPT
     except Exception:  # noqa: BLE001  (missing or foreign: not a run to continue)
         return False
-
-
-def run_name(args: Args) -> str:
-    if args.run_name is None:
-        args.run_name = f"{args.env_id}__{args.exp_name}__{args.seed}__{int(time.time())}"
-    return args.run_name
 
 
 def rng_state(device: torch.device, action_rng: np.random.Generator) -> dict:
@@ -921,16 +933,30 @@ def restore_rng(state: dict, device: torch.device, action_rng: np.random.Generat
     action_rng.bit_generator.state = state["actions"]
 
 
-def stop_non_finite(what: str, iteration: int, global_step: int, args: Args, tuned: list[str], checkpoint_path: str,
-                    progress: tqdm, writer: SummaryWriter) -> None:
+def stop_non_finite(what: str, iteration: int, global_step: int, settings: Settings, tuned: list[str],
+                    checkpoint_path: str, progress: tqdm, writer: SummaryWriter) -> None:
     """Exit status 1 with the iteration and the settings in force; the last checkpoint stays as it was."""
     progress.close()
     writer.close()
     last = (f"the last good checkpoint is {checkpoint_path}" if os.path.exists(checkpoint_path)
             else "no checkpoint was written")
     print(f"{SCRIPT}: error: non-finite {what} at iteration {iteration} (step {global_step}) with "
-          f"{', '.join(f'{n}={format_value(getattr(args, n))}' for n in tuned)}; stopped, {last}", file=sys.stderr)
+          f"{', '.join(f'{n}={format_value(getattr(settings, n))}' for n in tuned)}; stopped, {last}",
+          file=sys.stderr)
     sys.exit(1)
+
+
+def open_run_dir(run_dir: str, config: dict, checkpoint: Optional[dict], resumed: bool) -> SummaryWriter:
+    """The run directory and its TensorBoard writer; a run that goes on from a checkpoint drops the events a
+    killed process logged after it (purge_step)."""
+    os.makedirs(run_dir, exist_ok=True)
+    if not resumed and os.path.exists(os.path.join(run_dir, "summary.json")):
+        os.remove(os.path.join(run_dir, "summary.json"))  # --init-from in place: the run is no longer finished
+    writer = SummaryWriter(run_dir, purge_step=checkpoint["global_step"] + 1 if checkpoint is not None else None)
+    if not resumed:
+        writer.add_text("hyperparameters",
+                        "|param|value|\n|-|-|\n" + "\n".join(f"|{k}|{v}|" for k, v in config.items()))
+    return writer
 
 
 def save_checkpoint(path: str, checkpoint: dict) -> None:
@@ -944,18 +970,34 @@ def save_checkpoint(path: str, checkpoint: dict) -> None:
     os.replace(tmp, path)
 
 
-def atomic_save_json(path: str, obj: dict) -> None:
+def atomic_write_bytes(path: str, data: bytes) -> None:
     tmp = f"{path}.tmp"
-    with open(tmp, "w") as f:
-        f.write(json.dumps(obj, indent=2, allow_nan=False) + "\n")
+    with open(tmp, "wb") as f:
+        f.write(data)
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)
 
 
-def write_summary(run_dir: str, args: Args, config: dict, bandit: Optional[ULTHO], tuned: list[str],
-                  global_step: int, num_iterations: int, wall_time: float, ultho_seconds: float,
-                  device: torch.device, recent_returns: deque, recent_lengths: deque,
+def atomic_save_json(path: str, obj: dict) -> None:
+    atomic_write_bytes(path, (json.dumps(obj, indent=2, allow_nan=False) + "\n").encode())
+
+
+def report_progress(progress: tqdm, args: Args, iteration: int, num_iterations: int, global_step: int, sps: int,
+                    recent_returns: deque, choice_text: str) -> None:
+    """The progress bar on a terminal; elsewhere a plain line at every 5% of the run (none with --quiet)."""
+    recent = f"{np.mean(recent_returns):.3g}" if recent_returns else "-"
+    progress.update(global_step - progress.n)
+    progress.set_postfix_str(f"SPS {sps} | return {recent} | {choice_text}", refresh=False)
+    report_every = max(1, num_iterations // 20)
+    if progress.disable and not args.quiet and (iteration % report_every == 0 or iteration == num_iterations):
+        print(f"[{SCRIPT}] step {global_step}/{args.total_timesteps} ({100 * iteration // num_iterations}%) | "
+              f"SPS {sps} | return {recent} | {choice_text}", flush=True)
+
+
+def write_summary(run_dir: str, args: Args, config: dict, settings: Settings, tuned: list[str],
+                  bandit: Optional[ULTHO], global_step: int, num_iterations: int, wall_time: float,
+                  ultho_seconds: float, device: torch.device, recent_returns: deque, recent_lengths: deque,
                   eval_returns: list[float]) -> None:
     """summary.json, with the PPO scripts' keys (docs/scripts.md)."""
     summary = {
@@ -982,21 +1024,8 @@ def write_summary(run_dir: str, args: Args, config: dict, bandit: Optional[ULTHO
             "std_return": float(np.std(eval_returns)) if eval_returns else None,
             "returns": eval_returns,
         },
-        "settings_in_force": {name: getattr(args, name) for name in tuned},
-        "bandit": None if bandit is None else {
-            "search_space": bandit.search_space,
-            "c": bandit.c,
-            "window": bandit.window,
-            "utility": "min_q",
-            "strategy": bandit.strategy,
-            "credit": bandit.credit_mode,
-            "scale": bandit.scale_mode,
-            "exp3_eta": bandit.exp3_eta,
-            "selections": bandit.selections(),
-            "value_selections": bandit.value_selections(),
-            "coi": bandit.cluster_of_interest(),
-            "noi": bandit.neglected_cluster_of_interest(),
-        },
+        "settings_in_force": {name: getattr(settings, name) for name in tuned},
+        "bandit": None if bandit is None else bandit.summary("min_q"),
     }
     atomic_save_json(os.path.join(run_dir, "summary.json"), summary)
     if not args.quiet:

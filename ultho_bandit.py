@@ -374,6 +374,25 @@ class ULTHO:
         :func:`clusters_of_interest`)."""
         return clusters_of_interest(self.selections())[1]
 
+    def summary(self, utility: str) -> dict[str, Any]:
+        """The bandit's part of a run's summary.json: its search space and options, what it chose and the
+        clusters of interest (Eq. 7). ``utility`` names what the caller credits it with (e.g. ``"value"``), which
+        the bandit itself never sees. The keys and their order are the scripts' (docs/scripts.md)."""
+        return {
+            "search_space": self.search_space,
+            "c": self.c,
+            "window": self.window,
+            "utility": utility,
+            "strategy": self.strategy,
+            "credit": self.credit_mode,
+            "scale": self.scale_mode,
+            "exp3_eta": self.exp3_eta,
+            "selections": self.selections(),
+            "value_selections": self.value_selections(),
+            "coi": self.cluster_of_interest(),
+            "noi": self.neglected_cluster_of_interest(),
+        }
+
     def scalars(self) -> dict[str, float]:
         """A flat ``{tag: float}`` for TensorBoard: one ``writer.add_scalar(tag, x, step)`` per item.
 

@@ -138,11 +138,12 @@ def bf16_against_float32(script, agent, args, batch: dict[str, torch.Tensor]) ->
     under float32 with the same weights: the gradients' cosine similarity and relative norm difference, and the
     largest |ratio_bf16 - ratio_float32| over the batch."""
     gradients, ratios = {}, {}
+    settings = script.Settings.from_args(args)  # the settings in force: the command line's
     for precision in ("float32", "bf16"):
         agent.precision = precision
         agent.zero_grad(set_to_none=True)
-        loss, _ = script.ppo_loss(agent, args, batch["obs"], batch["actions"], batch["logprobs"], batch["advantages"],
-                                  batch["returns"], batch["values"])
+        loss, _ = script.ppo_loss(agent, args, settings, batch["obs"], batch["actions"], batch["logprobs"],
+                                  batch["advantages"], batch["returns"], batch["values"])
         loss.backward()
         assert all(p.grad.dtype == torch.float32 for p in agent.parameters())
         gradients[precision] = torch.cat([p.grad.flatten() for p in agent.parameters()])

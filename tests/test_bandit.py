@@ -119,6 +119,25 @@ def test_noi_differs_from_coi_after_a_strict_rotation():
     assert (bandit.cluster_of_interest(), bandit.neglected_cluster_of_interest()) == ("a", "b")
 
 
+def test_summary_holds_the_space_the_options_the_choices_and_the_clusters_of_interest():
+    bandit = ULTHO({"lr": [0.1, 0.2], "mb": [32]}, c=1.0, window=3, exp3_eta=0.25)
+    # i=1 -> lr/0.1 (all zero); i=2: lr = 1 + sqrt(ln2/2) = 1.589, mb = sqrt(ln 2) = 0.833 -> lr; inside lr,
+    # 0.1 = 1 + 0.589 against 0.2 = 0 + 0.833 -> 0.1.
+    for credit in (1.0, 1.0):
+        bandit.select()
+        bandit.update(credit)
+    summary = bandit.summary("return")
+    # The keys, in the order summary.json has always had them.
+    assert list(summary) == ["search_space", "c", "window", "utility", "strategy", "credit", "scale", "exp3_eta",
+                             "selections", "value_selections", "coi", "noi"]
+    assert summary == {
+        "search_space": {"lr": [0.1, 0.2], "mb": [32]}, "c": 1.0, "window": 3, "utility": "return",
+        "strategy": "ucb", "credit": "level", "scale": "none", "exp3_eta": 0.25,
+        "selections": {"lr": 2, "mb": 0}, "value_selections": {"lr": [2, 0], "mb": [0]}, "coi": "lr", "noi": "mb",
+    }
+    assert json.loads(json.dumps(summary)) == summary  # what summary.json holds is what the method returns
+
+
 def test_clusters_of_interest_rule():
     assert clusters_of_interest({"lr": 81, "mb": 81, "vf": 81}) == ("lr", "mb")
     assert clusters_of_interest({"lr": 5, "mb": 9, "vf": 9}) == ("mb", "lr")

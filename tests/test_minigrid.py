@@ -225,6 +225,7 @@ BAD_INPUTS = [
     (["--env-id", "CartPole-v1"], "CartPole-v1"),
     (["--num-envs", "0"], "--num-envs must be positive, got 0"),
     (["--num-steps", "-3"], "--num-steps must be positive, got -3"),
+    (["--torch-threads", "-1"], "--torch-threads must be >= 0 (0: one per core), got -1"),
     (["--num-steps", "abc"], "abc"),
     (["--minibatch-size", "300"], "300 does not divide"),
     (["--ultho-clusters", "momentum"], "momentum"),

@@ -256,10 +256,11 @@ def test_update_chunk_zero_is_the_whole_minibatch_on_cuda_and_at_most_512_on_the
     assert script.Args().update_chunk == 0
     for minibatch_size, on_the_cpu in ((2048, 512), (1024, 512), (512, 512), (256, 256)):
         automatic = script.Args(minibatch_size=minibatch_size)
-        assert script.update_chunk_size(automatic, cpu) == on_the_cpu
-        assert script.update_chunk_size(automatic, cuda) == minibatch_size
+        assert script.update_chunk_size(automatic.update_chunk, minibatch_size, cpu) == on_the_cpu
+        assert script.update_chunk_size(automatic.update_chunk, minibatch_size, cuda) == minibatch_size
     explicit = script.Args(minibatch_size=2048, update_chunk=48)
-    assert script.update_chunk_size(explicit, cpu) == script.update_chunk_size(explicit, cuda) == 48
+    assert (script.update_chunk_size(explicit.update_chunk, explicit.minibatch_size, cpu)
+            == script.update_chunk_size(explicit.update_chunk, explicit.minibatch_size, cuda) == 48)
 
 
 def test_env_threads_reach_procgen_and_do_not_change_the_games():

@@ -252,6 +252,7 @@ BAD_INPUTS = [
     (["--env-id", "CartPole-v1"], "CartPole-v1: its action space Discrete(2) is not continuous"),
     (["--num-envs", "0"], "--num-envs must be positive, got 0"),
     (["--num-steps", "-3"], "--num-steps must be positive, got -3"),
+    (["--torch-threads", "-1"], "--torch-threads must be >= 0 (0: one per core), got -1"),
     (["--num-steps", "abc"], "abc"),
     (["--minibatch-size", "100"], "100 does not divide"),
     (["--ultho-clusters", "momentum"], "momentum"),

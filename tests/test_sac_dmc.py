@@ -117,6 +117,7 @@ def test_utility_is_the_mean_over_the_intervals_batches_of_each_batchs_mean_min_
 
     obs_size, action_size = 3, 1
     args = script.Args(q_lr=1e-30, policy_frequency=1)
+    settings = script.Settings.from_args(args)
     sac = script.SAC.create(obs_size, action_size, np.array([-1.0], np.float32), np.array([1.0], np.float32), args,
                             torch.device("cpu"))
     with torch.no_grad():
@@ -137,7 +138,7 @@ def test_utility_is_the_mean_over_the_intervals_batches_of_each_batchs_mean_min_
     actor_before = {k: v.clone() for k, v in sac.actor.state_dict().items()}
     interval = script.IntervalStats(torch.device("cpu"))
     for update, batch in enumerate((rows([1.0, 3.0], [2.0, 0.0]), rows([0.0] * 4, [1.0] * 4)), start=1):
-        critic_stats, actor_stats = script.sac_update(sac, batch, update, args, obs_size, action_size)
+        critic_stats, actor_stats = script.sac_update(sac, batch, update, settings, obs_size, action_size)
         interval.add(batch.shape[0], critic_stats, actor_stats)
         if update == 1:  # Q1 = (1, 3), Q2 = (2.5, 0.5): means 2 and 1.5, min (1, 0.5)
             assert critic_stats[2:].tolist() == pytest.approx([2.0, 1.5, 0.75])
@@ -256,6 +257,7 @@ BAD_INPUTS = [
     (["--num-envs", "3"], "--ultho-interval 1000 is not a multiple of --num-envs 3"),
     (["--total-timesteps", "999"], "--total-timesteps 999 is less than one iteration"),
     (["--buffer-size", "0"], "--buffer-size must be positive, got 0"),
+    (["--torch-threads", "-1"], "--torch-threads must be >= 0 (0: one per core), got -1"),
     (["--learning-starts", "-1"], "--learning-starts must be >= 0, got -1"),
     (["--resume", "/no/such/run"], "--resume /no/such/run: no checkpoint.pt there"),
     (["--batch-size", "abc"], "abc"),
