@@ -545,19 +545,18 @@ def strata_of(runs: list[Run], envs: set[str] | None = None) -> list[np.ndarray]
 
 
 def coverage_groups(runs: list[Run], methods: list[str]) -> list[tuple[list[str], list[str]]]:
-    """[(environments, methods)]: methods grouped by the set of environments they have scored runs on, the
-    widest set first. Each aggregate table compares methods over exactly the same environments."""
+    """[(environments, methods)]: one group for each set of environments some method has scored runs on, the
+    widest set first, holding every method with scored runs on all of them (in ``methods``' order). Each
+    aggregate table compares its methods over exactly the same environments, so a method run on fewer
+    environments (a study still going, a grid on one environment) is compared there with the others."""
     covered: dict[str, frozenset] = {}
     for label in methods:
         envs = frozenset(r.env_id for r in runs if r.label == label and r.score is not None)
         if envs:
             covered[label] = envs
-    groups = defaultdict(list)
-    for label in methods:
-        if label in covered:
-            groups[covered[label]].append(label)
-    ordered = sorted(groups, key=lambda envs: (-len(envs), sorted(envs)))
-    return [(sorted(envs), groups[envs]) for envs in ordered]
+    ordered = sorted(set(covered.values()), key=lambda envs: (-len(envs), sorted(envs)))
+    return [(sorted(envs), [label for label in methods if label in covered and envs <= covered[label]])
+            for envs in ordered]
 
 
 # ---------------------------------------------------------------------- sample efficiency

@@ -357,7 +357,7 @@ def test_steps_to_threshold_by_hand():
     assert Efficiency([12_345, 54_321], [499_712] * 2).text() == "33,333 (2/2)"
 
 
-def test_methods_are_aggregated_only_over_the_environments_they_all_cover():
+def test_each_aggregate_compares_every_method_that_covers_its_environments_over_those_alone():
     def entry(label, env):
         run = Run("p", "minigrid", env, "ppo", None, None, 1, 1, 0.5, score=0.5)
         run.label = label
@@ -366,7 +366,7 @@ def test_methods_are_aggregated_only_over_the_environments_they_all_cover():
     runs = [entry("A", "x"), entry("A", "y"), entry("B", "y"), entry("B", "x"), entry("C", "x"), entry("D", "z")]
     runs.append(entry("E", "x"))
     runs[-1].score = None  # no scored run: in no aggregate
-    assert coverage_groups(runs, ["A", "B", "C", "D", "E"]) == [(["x", "y"], ["A", "B"]), (["x"], ["C"]),
+    assert coverage_groups(runs, ["A", "B", "C", "D", "E"]) == [(["x", "y"], ["A", "B"]), (["x"], ["A", "B", "C"]),
                                                                  (["z"], ["D"])]
 
 
