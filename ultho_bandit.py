@@ -477,7 +477,7 @@ class ULTHO:
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
         """Restores :meth:`state_dict` output into this bandit, which must have the same space and options.
 
-        A state of format 1 (before the variants existed) is the paper's UCB with level credits, unscaled.
+        A state of format 1 (it holds no strategy, credit or scale) is the paper's UCB with level credits, unscaled.
 
         Raises ValueError (and leaves this bandit unchanged) if the state does not match or is inconsistent.
         """
