@@ -667,12 +667,17 @@ def cumulative_shares(run: Run) -> np.ndarray | None:
     return np.column_stack([chosen[:, 0], onehot.cumsum(0) / np.arange(1, len(chosen) + 1)[:, None]])
 
 
-def bounds(run: Run) -> np.ndarray | None:
-    """(T, 1 + 2K): step, then each cluster's utility and upper confidence bound."""
-    tags = [f"ultho/{kind}/{cluster}" for cluster in run.search_space for kind in ("utility", "ucb")]
-    if not all(tag in run.series for tag in tags) or len({len(run.series[t]) for t in tags}) != 1:
+def aligned_series(run: Run, tags: list[str]) -> np.ndarray | None:
+    """(T, 1 + len(tags)): step, then each tag's value; None unless the run logged every tag equally often."""
+    if not tags or not all(tag in run.series for tag in tags) or len({len(run.series[t]) for t in tags}) != 1:
         return None
     return np.column_stack([run.series[tags[0]][:, 0]] + [run.series[t][:, 1] for t in tags])
+
+
+def bounds(run: Run) -> np.ndarray | None:
+    """(T, 1 + 2K): step, then each cluster's utility and upper confidence bound."""
+    return aligned_series(run, [f"ultho/{kind}/{cluster}" for cluster in run.search_space
+                                for kind in ("utility", "ucb")])
 
 
 # ---------------------------------------------------------------------- figures
@@ -1161,10 +1166,11 @@ def exploration_ratio(run: Run) -> float | None:
     median of the clusters' mean bonus c·sqrt(ln i / N) divided by the spread (max - min) of their utilities in
     the units the bound adds them in. Above 1 the bonus outweighs what separates the clusters (they are taken
     in turn); well below 1 the bandit follows the utilities. None for other strategies or without the series."""
-    tags = [f"ultho/{kind}/{cluster}" for cluster in run.search_space or {} for kind in ("ucb", "bonus")]
-    if not tags or not all(tag in run.series for tag in tags) or len({len(run.series[t]) for t in tags}) != 1:
+    series = aligned_series(run, [f"ultho/{kind}/{cluster}" for cluster in run.search_space or {}
+                                  for kind in ("ucb", "bonus")])
+    if series is None:
         return None
-    ucb, bonus = (np.column_stack([run.series[t][:, 1] for t in tags[k::2]]) for k in (0, 1))
+    ucb, bonus = series[:, 1::2], series[:, 2::2]
     half = slice(len(ucb) // 2, None)
     scaled_utility = (ucb - bonus)[half]
     spread = scaled_utility.max(1) - scaled_utility.min(1)
