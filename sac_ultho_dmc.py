@@ -42,12 +42,16 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 import tyro
-from dm_control import suite
 from tensorboard.compat.proto.summary_pb2 import Summary
 from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
 from ultho_bandit import ULTHO, format_value, parse_clusters
+
+# Nothing here renders, and dm_control loads the OpenGL backend MUJOCO_GL names when it is imported, failing where
+# that backend's library is missing (MUJOCO_GL=egl is common on GPU clusters): no backend at all.
+os.environ["MUJOCO_GL"] = "disabled"
+from dm_control import suite
 
 # dm_control's MuJoCo warns through absl about XML attributes its own task files use (cheetah's settotalmass);
 # not ours to show (bad input must print one line, --quiet nothing).

@@ -274,6 +274,15 @@ def test_bad_input_exits_2_with_one_line_and_writes_nothing(bad_input_results, c
     assert_refused(SCRIPT, *bad_input_results[case], BAD_INPUTS[case][1])
 
 
+def test_runs_where_mujoco_gl_names_a_renderer_the_machine_cannot_load(tmp_path):
+    # GLFW needs a display, which neither this machine nor CI has: dm_control, left to load it, fails on import.
+    result = run(SCRIPT, "--env-id", "cheetah-run", "--total-timesteps", "1000", "--ultho-interval", "1000",
+                 "--learning-starts", "1000", "--eval-episodes", "1", "--quiet", "--runs-dir", str(tmp_path),
+                 "--run-name", "glfw", env={"MUJOCO_GL": "glfw"})
+    assert result.returncode == 0, result.stderr
+    assert summary(str(tmp_path / "glfw"))["global_step"] == 1000
+
+
 def test_existing_run_directory_and_foreign_checkpoint_are_refused(tmp_path):
     assert_existing_run_and_foreign_checkpoint_refused(SCRIPT, tmp_path)
 
