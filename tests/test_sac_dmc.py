@@ -20,7 +20,8 @@ SPACE = {"q_lr": [3e-4, 1e-3, 3e-3], "policy_lr": [1e-4, 3e-4, 1e-3], "batch_siz
 SMALL = ["--ultho-clusters", "q_lr", "policy_lr", "batch_size=16,32,64", "tau", "--batch-size", "32"]
 # cheetah-run's episodes last 1000 steps: 1200 steps end one. Iterations of 100 steps; the first three only act
 # at random (steps 1-300 <= --learning-starts), so ULTHO chooses at iterations 4 to 12, nine times. c = 100 makes
-# the bonus outweigh any credit, so that UCB tries every cluster and then every cluster's second value.
+# the bonus outweigh any credit, so that UCB tries every cluster and then every cluster's second value; the
+# ninth choice goes by the credits.
 SMOKE = ["--env-id", "cheetah-run", "--total-timesteps", "1200", "--ultho-interval", "100", "--learning-starts",
          "300", *SMALL, "--ultho-c", "100", "--eval-episodes", "2", "--quiet"]
 SELECTION_STEPS = list(range(400, 1201, 100))
@@ -100,7 +101,10 @@ def test_chosen_values_are_in_force_in_the_updates_that_follow(smoke_run):
                 assert measured[name][step] == pytest.approx(in_force[name][step]), (name, step)
         previous = {name: in_force[name][step] for name in names}
     assert chosen_clusters == set(names)
-    assert {measured["batch_size"][step] for step in SELECTION_STEPS} == {16.0, 32.0}
+    # The batches changed size with the choices. Which sizes depends on the ninth choice, which the credits decide
+    # (and so the random stream: on CUDA it differs from the CPU's).
+    sizes = {measured["batch_size"][step] for step in SELECTION_STEPS}
+    assert len(sizes) >= 2 and sizes <= {float(size) for size in SPACE["batch_size"]}
     # The entropy coefficient's optimizer follows q_lr too, as in CleanRL.
     checkpoint = torch.load(os.path.join(smoke_run, "checkpoint.pt"), weights_only=False)
     assert checkpoint["sac"]["alpha_optimizer"]["param_groups"][0]["lr"] == checkpoint["settings"]["q_lr"]
