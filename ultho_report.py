@@ -897,7 +897,8 @@ def schedule_figure(runs: list[Run], benchmark: str, out: str) -> str | None:
 
 def robustness_figure(runs: list[Run], benchmark: str, grid: dict, seed: int, reps: int,
                       out: str) -> tuple[str | None, list[str]]:
-    """One panel per environment with ULTHO runs: the mean score at each (c, W) with its 95% interval, and PPO.
+    """One panel per environment with ULTHO runs: the mean score at each (c, W) with its 95% interval, and the
+    fixed-settings baseline.
     Returns (file name, the (c, W) cells of the sweeps' grids without scored runs)."""
     ultho = [r for r in runs if r.kind == "ultho" and r.score is not None and not r.narrowed
              and r.variant == PAPER_VARIANT]
@@ -1137,7 +1138,8 @@ def benchmark_section(study: Study, benchmark: str, args: argparse.Namespace, ro
     if robustness:
         lines += ["### Robustness over (c, W)", "", f"![robustness]({robustness})", "",
                   "Mean score of ULTHO at each (c, W) of each environment with its 95% percentile-bootstrap interval "
-                  "over seeds; the dashed line and grey band are fixed-settings PPO on that environment."
+                  "over seeds; the dashed line and grey band are fixed-settings "
+                  f"{baseline_of(benchmark)} on that environment."
                   + (f" No scored ULTHO runs at {', '.join(empty)}." if empty else ""), ""]
     return lines
 

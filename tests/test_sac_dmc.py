@@ -376,4 +376,7 @@ def test_report_scores_dmc_returns_divided_by_1000(smoke_run, tmp_path):
         [row] = list(csv.DictReader(f))
     assert (row["benchmark"], row["environments"]) == ("dmc", "cheetah-run") and row["method"].startswith("ULTHO")
     assert float(row["mean"]) == pytest.approx(summary(smoke_run)["final_score"] / 1000)
-    assert "## DMC" in (tmp_path / "out" / "report.md").read_text()
+    text = (tmp_path / "out" / "report.md").read_text()
+    assert "## DMC" in text
+    # The fixed-settings baseline is called SAC throughout a DMC report, the robustness caption included.
+    assert "fixed-settings SAC on that environment" in text and "PPO" not in text
