@@ -121,9 +121,14 @@ def main() -> None:
     parser.add_argument("--benchmarks", nargs="+", choices=sorted(BENCHMARKS), default=list(BENCHMARKS))
     parser.add_argument("--rounds", type=int, default=3, help="alternating rounds (default 3)")
     parser.add_argument("--steps", type=int, help="steps per run instead of each benchmark's own (a smoke test)")
-    parser.add_argument("--extra", nargs="*", default=[], metavar="FLAG",
-                        help="flags added to our runs only, e.g. --extra --torch-threads 1")
+    # One flag per --extra, written with "=": argparse reads a bare "--torch-threads" as an option of its own.
+    parser.add_argument("--extra", action="append", default=[], metavar="FLAG=VALUE",
+                        help="a flag added to our runs only, e.g. --extra=--torch-threads=2 (repeat for more)")
     args = parser.parse_args()
+    if args.rounds < 1:
+        parser.error(f"--rounds must be at least 1, got {args.rounds}")
+    if args.steps is not None and args.steps < 1:
+        parser.error(f"--steps must be at least 1, got {args.steps}")
     for benchmark in args.benchmarks:
         path = os.path.join(args.cleanrl_dir, BENCHMARKS[benchmark].cleanrl)
         if not os.path.isfile(path):
