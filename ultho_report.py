@@ -148,6 +148,18 @@ class Run:
     narrowed: bool = False  # ULTHO on a search space other than its benchmark's widest (set with the label)
 
 
+def finished_on_disk(run_dir: str, method: str) -> bool:
+    """Whether a sweep's run ended: its summary.json, or for a relay or study its record saying done."""
+    record = "relay.json" if method == "relay" else "study.json" if method in HPO_METHODS else None
+    if record is None:
+        return os.path.isfile(os.path.join(run_dir, "summary.json"))
+    try:
+        with open(os.path.join(run_dir, record)) as f:
+            return json.load(f).get("status") == "done"
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
 class Study:
     """Everything found below the given paths, and what was missing or unreadable."""
 
@@ -283,10 +295,14 @@ class Study:
                         self.grid[(benchmark_of(script), env_id)].update((float(c), int(w)) for c, w in points)
             for entry in sweep["runs"]:
                 where = os.path.join(directory, entry["path"])
-                if entry["status"] != "done":
-                    error = f": {entry['error']}" if entry.get("error") else ""
-                    self.missing.append(f"sweep run `{entry['name']}` ({entry['method']}, {entry['env_id']}, seed "
-                                        f"{entry['seed']}) is {entry['status']}{error}")
+                # sweep.json learns of a finished run only when the sweep does: the run's own files decide.
+                if entry["status"] != "done" and not finished_on_disk(where, entry["method"]):
+                    what = f"sweep run `{entry['name']}` ({entry['method']}, {entry['env_id']}, seed {entry['seed']})"
+                    if entry["status"] == "failed":
+                        error = f": {entry['error']}" if entry.get("error") else ""
+                        self.missing.append(f"{what} failed{error}")
+                    else:
+                        self.missing.append(f"{what} has not finished (sweep.json: {entry['status']})")
                 elif not os.path.isdir(where):
                     self.absent.append(f"{where} (listed as done in {path})")
                     self.warn(where, "listed as done in sweep.json but not there; skipped")

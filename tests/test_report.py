@@ -48,7 +48,10 @@ def study(tmp_path_factory):
                 extra = ["--no-ultho"] if c is None else SPACE + ["--ultho-c", str(c), "--ultho-window", str(window)]
                 jobs.append(TINY + extra + ["--env-id", env_id, "--seed", str(seed), "--runs-dir",
                                             str(root / "runs"), "--run-name", name])
-                entries.append(sweep_entry(name, env_id, method, c, window, seed, f"runs/{name}"))
+                # One finished run that sweep.json had not yet heard of (the sweep stopped before it could).
+                stale = (env_id, method, seed) == (ENVS[1], "ppo", 2)
+                entries.append(sweep_entry(name, env_id, method, c, window, seed, f"runs/{name}",
+                                           "running" if stale else "done"))
     for result in run_concurrently(SCRIPT, jobs):
         assert result.returncode == 0, result.stderr
 
@@ -73,6 +76,7 @@ def study(tmp_path_factory):
     (relay_dir / "relay.json").write_text(json.dumps(relay))
     entries.append(sweep_entry("relay_1", ENVS[0], "relay", 5.0, 10, 1, "relays/relay_1"))
     entries.append(sweep_entry("relay_2", ENVS[0], "relay", 5.0, 10, 2, "relays/relay_2", "failed", "exit status 1"))
+    entries.append(sweep_entry("ppo_3", ENVS[1], "ppo", None, None, 3, "runs/ppo_3", "running"))  # never started
     grid = {"scripts": [SCRIPT], "env_ids": ENVS, "methods": ["ppo", "ultho", "relay"], "c": [1.0, 5.0],
             "window": [10, 50], "seeds": SEEDS, "total_timesteps": 1024, "extra_args": TINY}
     (root / "sweep.json").write_text(json.dumps({"format": 1, "grid": grid, "runs": entries}))
@@ -121,7 +125,10 @@ def test_every_figure_exists_and_report_md_links_it(reports):
 
 def test_report_says_what_is_missing(reports):
     report = (reports["a"] / "report.md").read_text()
-    assert "sweep run `relay_2` (relay, MiniGrid-Empty-5x5-v0, seed 2) is failed: exit status 1" in report
+    missing = report.split("## Missing and skipped")[1]
+    assert "- sweep run `relay_2` (relay, MiniGrid-Empty-5x5-v0, seed 2) failed: exit status 1\n" in missing
+    assert f"- sweep run `ppo_3` (ppo, {ENVS[1]}, seed 3) has not finished (sweep.json: running)\n" in missing
+    assert f"{ENVS[1]}__ppo__2" not in missing  # finished, though its sweep.json entry still said running
     assert (f"No scored ULTHO runs at {ENVS[0]} (c=1, W=10), {ENVS[0]} (c=5, W=50), {ENVS[1]} (c=1, W=10), "
             f"{ENVS[1]} (c=5, W=50).") in report
     # The single relay has a run on the first environment only: its own aggregate table, over that one.
