@@ -60,7 +60,7 @@ def assert_scores_recorded(record: dict) -> None:
 
 
 def test_pbt_study_records_budget_exploits_and_best_trial(pbt_study):
-    study_dir, result = pbt_study
+    study_dir, stdout = pbt_study
     record = read(study_dir / "study.json")
     assert set(record) == STUDY_FIELDS and record["status"] == "done" and record["errors"] == []
     assert (record["method"], record["population"], record["seed"]) == ("pbt", 3, 1)
@@ -90,7 +90,7 @@ def test_pbt_study_records_budget_exploits_and_best_trial(pbt_study):
     assert schedule[1]["settings"] == best["segments"][1]["settings"]
     first = best["segments"][1]["started_from"]["trial"]
     assert schedule[0]["trial"] == first
-    assert "[hpo] done: 3 trials, 3,072 steps in all" in result.stdout
+    assert "[hpo] done: 3 trials, 3,072 steps in all" in stdout
 
 
 def test_pbt_exploit_starts_from_the_source_checkpoint_with_the_new_settings(pbt_study, tmp_path):
