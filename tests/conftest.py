@@ -3,7 +3,7 @@
 import os
 
 # One thread per torch process (the workers', the scripts' they start, Ray's): the suite runs several at once on
-# each core, and at torch's default of a thread per core they spin in OpenMP's waits, about 4x slower
+# each core, and at torch's default of a thread per core they spin in OpenMP's waits, 3-5x slower
 # (docs/development.md). Set before anything imports torch.
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
