@@ -154,12 +154,15 @@ class Args:
     """window W of the utility's moving average, Eq. 6 (paper grid: 10, 50, 100)"""
     ultho_clusters: tuple[str, ...] = tuple(SEARCH_SPACE)
     """search space: NAME takes the paper's values, NAME=V1,V2,... sets them; one cluster = a Relay run"""
-    ultho_utility: Literal["value", "return", "value-after"] = "value"
-    """credit: mean critic value over the next rollout, mean GAE return over it, or the updated critic
-    on this rollout's observations (the paper's Algorithm 1 read literally); see the README"""
-    ultho_strategy: Literal["ucb", "ts", "exp3"] = "ucb"
-    """how the bandit chooses at both levels: ucb (Eqs. 4-5, the paper's), ts (Gaussian Thompson sampling)
-    or exp3 (discounted Exp3); docs/strategies.md says when to use which"""
+    ultho_utility: Literal["value", "return", "value-after", "authors-return"] = "value"
+    """credit: mean critic value over the next rollout, mean GAE return over it, the updated critic on this
+    rollout's observations (the paper's Algorithm 1 read literally), or the authors' public code's credit: the
+    mean GAE return of the rollout just collected, given to the choice made for its own update (never the run's
+    first choice); docs/bandit.md#the-utility-signal"""
+    ultho_strategy: Literal["ucb", "ts", "exp3", "round-robin"] = "ucb"
+    """how the bandit chooses at both levels: ucb (Eqs. 4-5, the paper's), ts (Gaussian Thompson sampling),
+    exp3 (discounted Exp3) or round-robin (the values in turn, the control without a bandit);
+    docs/strategies.md says when to use which"""
     ultho_credit: Literal["level", "improvement"] = "level"
     """what a choice is credited with: the utility as measured (level, the paper's) or its change since
     just before the choice took effect (improvement)"""
@@ -511,12 +514,19 @@ def main(args: Args) -> None:
         if bandit is not None:
             tick = time.perf_counter()
             # What is measured now, before this iteration's choice takes effect: it credits the previous choice
-            # and is the baseline of --ultho-credit improvement (value-after credits after the update instead).
-            measured = (returns if args.ultho_utility == "return" else values).mean().item()
-            if bandit.pending is not None and args.ultho_utility != "value-after":
+            # and is the baseline of --ultho-credit improvement (value-after credits after the update instead;
+            # authors-return credits the choice made now, as the authors' code does, except the run's first).
+            measured = (returns if args.ultho_utility in ("return", "authors-return") else values).mean().item()
+            if bandit.pending is not None and args.ultho_utility in ("value", "return"):
                 credit = measured
                 bandit.update(credit)
             cluster, choice = bandit.select(before=measured)
+            if args.ultho_utility == "authors-return":
+                if iteration == 1:
+                    bandit.withdraw()
+                else:
+                    credit = measured
+                    bandit.update(credit)
             setattr(settings, cluster, choice)
             if cluster == "learning_rate":
                 for group in optimizer.param_groups:
@@ -700,6 +710,9 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
             raise UsageError(f"--ultho-window must be >= 1, got {args.ultho_window}")
         if not (math.isfinite(args.ultho_exp3_eta) and args.ultho_exp3_eta > 0):
             raise UsageError(f"--ultho-exp3-eta must be a finite number > 0, got {args.ultho_exp3_eta}")
+        if args.ultho_utility == "authors-return" and args.ultho_credit == "improvement":
+            raise UsageError("--ultho-credit improvement does not go with --ultho-utility authors-return (a choice "
+                             "would be measured against its own credit); use --ultho-credit level")
     if args.resume is None:
         if os.sep in args.run_name or args.run_name in ("", ".", ".."):
             raise UsageError(f"--run-name {args.run_name!r} is not a plain directory name")

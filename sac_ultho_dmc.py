@@ -141,9 +141,10 @@ class Args:
     """window W of the utility's moving average, Eq. 6 (paper grid: 10, 50, 100)"""
     ultho_clusters: tuple[str, ...] = tuple(SEARCH_SPACE)
     """search space: NAME takes the default values, NAME=V1,V2,... sets them; one cluster = a Relay run"""
-    ultho_strategy: Literal["ucb", "ts", "exp3"] = "ucb"
-    """how the bandit chooses at both levels: ucb (Eqs. 4-5, the paper's), ts (Gaussian Thompson sampling)
-    or exp3 (discounted Exp3); docs/strategies.md says when to use which"""
+    ultho_strategy: Literal["ucb", "ts", "exp3", "round-robin"] = "ucb"
+    """how the bandit chooses at both levels: ucb (Eqs. 4-5, the paper's), ts (Gaussian Thompson sampling),
+    exp3 (discounted Exp3) or round-robin (the values in turn, the control without a bandit);
+    docs/strategies.md says when to use which"""
     ultho_credit: Literal["level", "improvement"] = "level"
     """what a choice is credited with: the utility as measured (level, the paper's) or its change from the
     previous interval's (improvement)"""

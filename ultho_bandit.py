@@ -20,7 +20,11 @@ The defaults are the paper's algorithm: ``strategy="ucb"``, ``credit="level"``, 
 * ``scale="running"`` divides every utility by the running standard deviation of all credits so far, so that
   c (and the Thompson-sampling and Exp3 arithmetic) means the same whatever the credits' units;
 * ``strategy="ts"``: Gaussian Thompson sampling on each arm's window; ``strategy="exp3"``: Exp3 with weights
-  discounted by 1 - 1/W, on credits mapped to [0, 1]. Both draw from a seeded generator kept in the state.
+  discounted by 1 - 1/W, on credits mapped to [0, 1]. Both draw from a seeded generator kept in the state;
+* ``strategy="round-robin"``: the control without a bandit: the least-chosen cluster, then its least-chosen value
+  (ties to the earliest), so the clusters and each cluster's values come in turn whatever the credits say.
+
+:meth:`ULTHO.withdraw` drops a selection uncredited, as the authors' public code does with a run's first choice.
 
 Pure Python: one ``select()`` + ``update()`` pair over 4 clusters x 3 values costs a few microseconds
 (``benchmarks/bench_bandit.py``).
@@ -35,11 +39,11 @@ from typing import Any, Literal, Mapping, Sequence
 
 Number = int | float
 SearchSpace = dict[str, list[Number]]
-Strategy = Literal["ucb", "ts", "exp3"]
+Strategy = Literal["ucb", "ts", "exp3", "round-robin"]
 Credit = Literal["level", "improvement"]
 Scale = Literal["none", "running"]
 
-STRATEGIES: tuple[str, ...] = ("ucb", "ts", "exp3")
+STRATEGIES: tuple[str, ...] = ("ucb", "ts", "exp3", "round-robin")
 CREDITS: tuple[str, ...] = ("level", "improvement")
 SCALES: tuple[str, ...] = ("none", "running")
 STATE_FORMAT = 2
@@ -158,7 +162,8 @@ class ULTHO:
         c: exploration coefficient of Eqs. 4 and 5 (finite, >= 0); UCB only. The paper's grid is {1, 5}.
         window: W, the number of most recent credits averaged into a utility (Eq. 6). Paper: {10, 50, 100}.
             Exp3 discounts its weights by 1 - 1/W per update instead, so W is the memory of every strategy.
-        strategy: ``"ucb"`` (Eqs. 4-5, the paper's), ``"ts"`` (Gaussian Thompson sampling) or ``"exp3"``.
+        strategy: ``"ucb"`` (Eqs. 4-5, the paper's), ``"ts"`` (Gaussian Thompson sampling), ``"exp3"``, or
+            ``"round-robin"`` (the values in turn, credits recorded but never used: the control for all three).
         credit: ``"level"`` (the utility as measured, the paper's) or ``"improvement"`` (the utility minus the
             one given to :meth:`select` as ``before``).
         scale: ``"none"`` (the paper's) or ``"running"``: utilities divided by the running standard deviation
@@ -275,8 +280,26 @@ class ULTHO:
         self._last_credit = credit
         return credit
 
+    def withdraw(self) -> None:
+        """Drops the pending selection uncredited, as if it had not been made: its selection number i is given
+        back (the next :meth:`select` is number i again) and no count or window changes. The value it chose may
+        have been used all the same; it just earns nothing. The authors' public code treats a run's first choice
+        so (``--ultho-utility authors-return``, docs/authors_code.md).
+
+        Raises:
+            RuntimeError: no selection is pending.
+        """
+        if self._pending is None:
+            raise RuntimeError("withdraw() without a pending selection: call select() first")
+        self._num_selections -= 1
+        self._pending = None
+        self._pending_before = None
+        self._pending_probabilities = (1.0, 1.0)
+
     def _choose(self, arms: Sequence[_Arm], log_i: float) -> tuple[int, float]:
         """(index, probability with which it was drawn) of one level's choice under the strategy."""
+        if self.strategy == "round-robin":  # the least-chosen arm; N counts credits, so the arms come in turn
+            return _first_best([-arm.count for arm in arms]), 1.0
         if self.strategy == "ucb":  # Eqs. 4 and 5
             return _first_best([self._scaled(arm.utility) + arm.bonus(self.c, log_i) for arm in arms]), 1.0
         if self.strategy == "ts":
@@ -423,7 +446,7 @@ class ULTHO:
                     elif self.strategy == "ts":
                         out[f"ultho/ts_mean/{tag}"] = self._scaled(arm.utility)
                         out[f"ultho/ts_std/{tag}"] = arm.posterior_std()
-                    else:
+                    elif self.strategy == "exp3":
                         out[f"ultho/probability/{tag}"] = probabilities[siblings.index(arm)]
         if self._last is None:
             out["ultho/selected_cluster"] = -1.0

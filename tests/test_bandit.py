@@ -442,8 +442,8 @@ def test_exp3_sequence_by_hand():
     assert bandit.select() == ("a", 1)
 
 
-VARIANTS = [dict(strategy=s, credit=k, scale=x) for s in ("ucb", "ts", "exp3") for k in ("level", "improvement")
-            for x in ("none", "running")]
+VARIANTS = [dict(strategy=s, credit=k, scale=x) for s in ("ucb", "ts", "exp3", "round-robin")
+            for k in ("level", "improvement") for x in ("none", "running")]
 
 
 @pytest.mark.parametrize("options", VARIANTS, ids=lambda o: "-".join(o.values()))
@@ -538,3 +538,66 @@ def test_the_papers_ucb_depends_on_the_credit_scale(seed):
     assert len(small) == 6 and max(small.values()) - min(small.values()) <= 2  # 250 pulls: 41 to 43 each
     large = _stationary_pulls(dict(c=5.0, window=50), 100.0, seed)
     assert (1, 2) not in large and max(large.values()) >= 248
+
+
+# ----------------------------------------------------------------------------------------------------------
+# The authors' timing (withdraw) and the round-robin control.
+# ----------------------------------------------------------------------------------------------------------
+
+
+def test_withdraw_gives_back_the_selection_number_as_the_authors_ucb_counts():
+    # The authors' flat UCB over PPO epochs {10, 5}: their first choice is never credited, and their log term
+    # counts credits + 1, so the second choice is made with ln 1 = 0 as well. c = 5, W = 10.
+    bandit = ULTHO({"update_epochs": [10, 5]}, c=5.0, window=10)
+    assert bandit.select() == ("update_epochs", 10)  # iteration 1: i = 1, every bound 0 -> the first value
+    bandit.withdraw()
+    assert bandit.num_selections == 0 and bandit.pending is None and bandit.selections() == {"update_epochs": 0}
+    assert bandit.select() == ("update_epochs", 10)  # iteration 2: i = 1 again -> 10, credited at once
+    assert bandit.update(0.30) == 0.30  # 10: N = 2, U = 0.30
+    # iteration 3, i = 2, ln 2 = 0.693147: 10 -> 0.30 + 5*sqrt(0.6931/2) = 3.2435 ; 5 -> 5*sqrt(0.6931) = 4.1628
+    assert bandit.select() == ("update_epochs", 5)
+    assert bandit.scalars()["ultho/ucb/update_epochs/10"] == pytest.approx(3.243525, abs=1e-5)
+    assert bandit.scalars()["ultho/ucb/update_epochs/5"] == pytest.approx(4.162773, abs=1e-5)
+    bandit.update(0.10)  # 5: N = 2, U = 0.10
+    # iteration 4, i = 3, ln 3 = 1.098612: 10 -> 0.30 + 5*sqrt(1.0986/2) = 4.0058 ; 5 -> 0.10 + 3.7058 -> 10
+    assert bandit.select() == ("update_epochs", 10)
+    assert bandit.scalars()["ultho/ucb/update_epochs/5"] == pytest.approx(3.805760, abs=1e-5)
+    bandit.update(0.50)
+    assert bandit.value_selections() == {"update_epochs": [2, 1]}
+    assert bandit.utilities() == {"update_epochs": pytest.approx(0.30)}  # the cluster: every credit
+    assert bandit.scalars()["ultho/utility/update_epochs/10"] == pytest.approx(0.40)  # 10's own: 0.30, 0.50
+
+
+def test_withdraw_needs_a_pending_selection_and_survives_a_state_round_trip():
+    bandit = ULTHO({"lr": [1, 2]}, c=1.0)
+    with pytest.raises(RuntimeError, match="withdraw"):
+        bandit.withdraw()
+    bandit.select()
+    bandit.withdraw()
+    with pytest.raises(RuntimeError, match="withdraw"):
+        bandit.withdraw()
+    restored = ULTHO.from_state_dict(json.loads(json.dumps(bandit.state_dict())))
+    assert restored.state_dict() == bandit.state_dict() and restored.select() == bandit.select() == ("lr", 1)
+
+
+def test_round_robin_takes_clusters_and_their_values_in_turn_whatever_the_credits():
+    bandit = ULTHO({"lr": [1, 2, 3], "mb": [64, 128], "vf": [0.5]}, strategy="round-robin")
+    chosen = []
+    for credit in [100.0, -5.0, 3.0, 1e6, -1e6, 0.0, 7.0, 7.0, -2.0]:
+        chosen.append(bandit.select())
+        bandit.update(credit)
+    assert chosen == [("lr", 1), ("mb", 64), ("vf", 0.5), ("lr", 2), ("mb", 128), ("vf", 0.5), ("lr", 3),
+                      ("mb", 64), ("vf", 0.5)]
+    assert bandit.selections() == {"lr": 3, "mb": 3, "vf": 3}
+    tags = bandit.scalars()
+    assert tags["ultho/count/mb/64"] == 2.0 and tags["ultho/utility/lr"] == pytest.approx((100.0 + 1e6 + 7.0) / 3)
+    assert not any(tag.startswith(("ultho/ucb", "ultho/bonus", "ultho/ts_", "ultho/probability")) for tag in tags)
+
+
+def test_round_robin_over_one_cluster_is_the_authors_rotation():
+    bandit = ULTHO({"update_epochs": [10, 5]}, strategy="round-robin")
+    chosen = []
+    for k in range(6):
+        chosen.append(bandit.select()[1])
+        bandit.update(float(k))
+    assert chosen == [10, 5, 10, 5, 10, 5]
