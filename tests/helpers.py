@@ -14,6 +14,8 @@ import numpy as np
 import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
+from ultho_bandit import ULTHO
+
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
@@ -191,3 +193,48 @@ def assert_bf16_resume_equals_uninterrupted(script: str, tmp_path, args: list[st
     after_kill = [(step, loss) for step, loss in a["losses/value_loss"] if step > checkpoint["global_step"]]
     assert [step for step, _ in float32["losses/value_loss"]] == [step for step, _ in after_kill]
     assert float32["losses/value_loss"] != after_kill
+
+
+# Three clusters of one value each, every value the scripts' default: whatever the bandit chooses, every update is
+# the fixed-settings update, so runs that differ only in their credit train identically.
+NEUTRAL_SPACE = {"vf_coef": [0.5], "clip_coef": [0.2], "max_grad_norm": [0.5]}
+
+
+def assert_authors_credit_timing_and_exact_resume(script: str, tmp_path, args: list[str]) -> None:
+    """--ultho-utility authors-return: the run's first choice is withdrawn uncredited; at every later iteration the
+    choice just made is credited, before its update, with the mean GAE return of the rollout just collected. That
+    number is the one --ultho-utility return measures at the same iteration and gives to the *previous* choice, so
+    a `return` run over NEUTRAL_SPACE (identical training) supplies it; the authors' choices must then be those of
+    a bandit fed exactly that timing. Killed after its first checkpoint and resumed, the run equals the
+    uninterrupted one. `args`: a tiny run of about six iterations with --checkpoint-every 2 and a --runs-dir."""
+    clusters = ["--ultho-clusters", *(f"{name}={values[0]}" for name, values in NEUTRAL_SPACE.items()),
+                "--ultho-c", "0.5", "--ultho-window", "2", "--eval-episodes", "0", "--quiet"]
+    authors = [*args, *clusters, "--ultho-utility", "authors-return"]
+    for result in run_concurrently(script, [[*authors, "--run-name", "whole"],
+                                            [*args, *clusters, "--ultho-utility", "return", "--run-name", "return"]]):
+        assert result.returncode == 0, result.stderr
+    kill_after_first_checkpoint(script, str(tmp_path / "killed"), *authors, "--run-name", "killed")
+    assert not (tmp_path / "killed" / "summary.json").exists()
+    run_ok(script, "--resume", str(tmp_path / "killed"), "--quiet")
+
+    whole, other = scalars(str(tmp_path / "whole")), scalars(str(tmp_path / "return"))
+    chosen = [int(v) for _, v in whole["ultho/selected_cluster"]]
+    measured = [v for _, v in other["ultho/credit"]]  # the mean GAE return of rollouts 2, 3, ...
+    assert len(measured) == len(chosen) - 1 >= 4
+    assert whole["ultho/credit"] == other["ultho/credit"]  # the same numbers at the same iterations ...
+    assert whole["losses/value_loss"] == other["losses/value_loss"]  # ... of the same training
+    assert chosen[:2] == [0, 0]  # 1: every bound 0; withdrawn, so 2 is selection number 1 again
+    replay = ULTHO(NEUTRAL_SPACE, c=0.5, window=2)
+    expected = [replay.select()]
+    replay.withdraw()
+    for credit in measured:  # ... but each credits the choice made at its own iteration
+        expected.append(replay.select())
+        replay.update(credit)
+    assert [replay.cluster_names.index(name) for name, _ in expected] == chosen
+    assert summary(str(tmp_path / "whole"))["bandit"]["selections"] == replay.selections()
+    assert summary(str(tmp_path / "whole"))["bandit"]["utility"] == "authors-return"
+
+    resumed = scalars(str(tmp_path / "killed"))
+    assert summary(str(tmp_path / "whole"))["bandit"] == summary(str(tmp_path / "killed"))["bandit"]
+    for tag in ("ultho/selected_cluster", "ultho/credit", "ultho/ucb/vf_coef", "losses/value_loss"):
+        assert whole[tag] == resumed[tag], tag

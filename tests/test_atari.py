@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from helpers import (
+    assert_authors_credit_timing_and_exact_resume,
     assert_bf16_resume_equals_uninterrupted, assert_existing_run_and_foreign_checkpoint_refused, assert_refused,
     bf16_against_float32, kill_after_first_checkpoint, real_rollout, run, run_bad_inputs, run_concurrently,
     run_ok, scalars, summary,
@@ -283,3 +284,9 @@ def test_other_utility_signals_credit_every_choice(tmp_path, utility):
     assert credited == (3 if utility == "value-after" else 2)
     credits = [v for _, v in scalars(str(tmp_path / "u"))["ultho/credit"]]
     assert len(credits) == credited and all(math.isfinite(c) for c in credits)
+
+
+def test_authors_credit_goes_to_the_choice_just_made_and_resumes_exactly(tmp_path):
+    args = ["--env-id", "Breakout", "--num-envs", "4", "--num-steps", "64", "--total-timesteps", "1536",
+            "--minibatch-size", "64", "--checkpoint-every", "2", "--runs-dir", str(tmp_path)]
+    assert_authors_credit_timing_and_exact_resume(SCRIPT, tmp_path, args)

@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from helpers import (
+    assert_authors_credit_timing_and_exact_resume,
     assert_existing_run_and_foreign_checkpoint_refused, assert_refused, kill_after_first_checkpoint, run,
     run_bad_inputs, run_ok, scalars, summary,
 )
@@ -349,3 +350,9 @@ def test_fast_obs_run_equals_minigrid_obs_run(tmp_path):
         assert fast[key] == slow[key], key
     a, b = (torch.load(tmp_path / name / "checkpoint.pt", weights_only=False)["agent"] for name in ("fast", "minigrid"))
     assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_authors_credit_goes_to_the_choice_just_made_and_resumes_exactly(tmp_path):
+    args = ["--env-id", "MiniGrid-Empty-5x5-v0", "--num-envs", "8", "--num-steps", "64", "--total-timesteps", "3072",
+            "--minibatch-size", "128", "--checkpoint-every", "2", "--runs-dir", str(tmp_path)]
+    assert_authors_credit_timing_and_exact_resume(SCRIPT, tmp_path, args)

@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from helpers import (
+    assert_authors_credit_timing_and_exact_resume,
     assert_bf16_resume_equals_uninterrupted, assert_existing_run_and_foreign_checkpoint_refused, assert_refused,
     bf16_against_float32, kill_after_first_checkpoint, real_rollout, run, run_bad_inputs, run_ok, scalars,
     summary,
@@ -281,3 +282,9 @@ def test_env_threads_reach_procgen_and_do_not_change_the_games():
         del envs
     for other in games[1:]:
         assert all(np.array_equal(x, y) for x, y in zip(games[0], other))
+
+
+def test_authors_credit_goes_to_the_choice_just_made_and_resumes_exactly(tmp_path):
+    args = ["--num-envs", "4", "--num-steps", "32", "--minibatch-size", "64", "--update-chunk", "48",
+            "--total-timesteps", "768", "--checkpoint-every", "2", "--runs-dir", str(tmp_path)]
+    assert_authors_credit_timing_and_exact_resume(SCRIPT, tmp_path, args)

@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from helpers import (
+    assert_authors_credit_timing_and_exact_resume,
     assert_existing_run_and_foreign_checkpoint_refused, assert_refused, kill_after_first_checkpoint, run,
     run_bad_inputs, run_ok, scalars, summary,
 )
@@ -332,3 +333,9 @@ def test_other_environments_run(tmp_path, env_id):
            "--run-name", "other")
     s = summary(str(tmp_path / "other"))
     assert s["env_id"] == env_id and s["global_step"] == 256 and s["eval"]["episodes"] == 1
+
+
+def test_authors_credit_goes_to_the_choice_just_made_and_resumes_exactly(tmp_path):
+    args = ["--env-id", "HopperBulletEnv-v0", "--num-steps", "128", "--total-timesteps", "768",
+            "--update-epochs", "2", "--checkpoint-every", "2", "--runs-dir", str(tmp_path)]
+    assert_authors_credit_timing_and_exact_resume(SCRIPT, tmp_path, args)
