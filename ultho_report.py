@@ -24,6 +24,7 @@ report can be redrawn: ``python ultho_report.py DIR --out ...``.
 """
 
 import argparse
+import ast
 import csv
 import itertools
 import json
@@ -142,6 +143,8 @@ class Run:
     search_space: dict[str, list] | None = None
     variant: str = "ucb:level:none"  # the bandit's strategy:credit:scale (summary.json; the paper's when absent)
     value_selections: dict[str, list[int]] | None = None  # credited selections of each value (summary.json)
+    utility: str = "value"  # what the bandit was credited with (--ultho-utility; the default when absent)
+    settings: dict = field(default_factory=dict)  # the run's command-line settings (summary.json's "settings")
     study: dict | None = None  # an HPO study's study.json (hpo_baselines.py)
     score: float | None = None  # normalized, set by Study.normalize
     label: str = ""  # the method, set by Study.label_methods
@@ -421,6 +424,8 @@ class Study:
             search_space=bandit["search_space"] if bandit else None,
             variant=variant_of(bandit or {}),
             value_selections=bandit.get("value_selections") if bandit else None,
+            utility=str(bandit.get("utility", "value")) if bandit else "value",
+            settings=summary.get("settings") or {},
         ))
 
     # ------------------------------------------------------------------ scores and methods
@@ -436,29 +441,80 @@ class Study:
                                     "tables, not in the aggregate")
 
     def label_methods(self) -> None:
-        """PPO, ULTHO (c, W), Relay-ULTHO (c, W); a search space other than the benchmark's widest one is named."""
+        """PPO, ULTHO (c, W), Relay-ULTHO (c, W); a search space other than the benchmark's widest one is named,
+        and so are a credit other than the default, and the settings of fixed-settings runs that differ from
+        their script's defaults where the benchmark's fixed-settings runs do not all share them."""
         widest = {}
         for run in self.runs:
             if run.search_space and len(run.search_space) > len(widest.get(run.benchmark, {})):
                 widest[run.benchmark] = run.search_space
         for run in self.runs:
             if run.kind == "ppo":
-                run.label = baseline_of(run.benchmark)
+                run.label = baseline_of(run.benchmark) + fixed_settings_text(run, self.runs)
                 continue
             if run.kind in HPO_METHODS:
                 run.label = (f"random search ({run.study.get('samples')} samples)" if run.kind == "random" else
                              f"{HPO_NAMES[run.kind]} (population {run.study.get('population')})")
                 continue
             strategy = run.variant.split(":")[0]
-            if run.c is None:
+            if run.c is None or strategy == "round-robin":  # a rotation uses neither c nor W
                 setting = ""
             else:  # Thompson sampling and Exp3 do not use c
                 setting = f" (c={run.c:g}, W={run.window})" if strategy == "ucb" else f" (W={run.window})"
             variant = "" if run.variant == PAPER_VARIANT else " " + run.variant.replace(":", "/")
-            run.label = ("ULTHO" if run.kind == "ultho" else "Relay-ULTHO") + variant + setting
+            if run.utility != script_defaults(run.benchmark).get("ultho_utility", run.utility):
+                variant += f" {run.utility}"
+            name = "ULTHO" if run.kind == "ultho" else "Relay-ULTHO"
+            if strategy == "round-robin":
+                name, variant = ("Round robin" if run.kind == "ultho" else "Relay round robin"), ""
+            run.label = name + variant + setting
             run.narrowed = bool(run.search_space) and run.search_space != widest[run.benchmark]
             if run.narrowed:
                 run.label += " on " + ", ".join(f"{k}={'/'.join(map(str, v))}" for k, v in run.search_space.items())
+
+
+NOT_SETTINGS = ("seed", "env_id", "run_name", "exp_name", "runs_dir", "resume", "init_from", "quiet",
+                "total_timesteps")
+"""Fields of a run's settings that say which run it is, not how it learns: never named in a method's label."""
+
+
+def fixed_settings_text(run: Run, runs: list[Run]) -> str:
+    """", update_epochs=5" for a fixed-settings run whose settings differ from its script's defaults, naming only
+    the settings on which the benchmark's fixed-settings runs disagree (so one set of runs keeps the plain name)."""
+    peers = [r for r in runs if r.kind == run.kind and r.benchmark == run.benchmark]
+    defaults = script_defaults(run.benchmark)
+    named = []
+    for key, value in run.settings.items():
+        if key in NOT_SETTINGS or key not in defaults or value == defaults[key]:
+            continue
+        if any(peer.settings.get(key, defaults[key]) != value for peer in peers):
+            named.append(f"{key}={value}")
+    return (", " + ", ".join(named)) if named else ""
+
+
+_DEFAULTS: dict[str, dict] = {}
+
+
+def script_defaults(benchmark: str) -> dict:
+    """The literal defaults of a benchmark's script's Args dataclass, read from its source beside this module
+    (empty when the script is not there)."""
+    if benchmark not in _DEFAULTS:
+        stem = "sac_ultho_dmc" if benchmark == "dmc" else f"ppo_ultho_{benchmark}"
+        path = os.path.join(os.path.dirname(os.path.abspath(__file__)), f"{stem}.py")
+        defaults = {}
+        if os.path.exists(path):
+            with open(path, encoding="utf-8") as f:
+                tree = ast.parse(f.read())
+            for node in tree.body:
+                if isinstance(node, ast.ClassDef) and node.name == "Args":
+                    for item in node.body:
+                        if isinstance(item, ast.AnnAssign) and isinstance(item.target, ast.Name) and item.value:
+                            try:
+                                defaults[item.target.id] = ast.literal_eval(item.value)
+                            except ValueError:
+                                pass  # not a literal (e.g. the search space's names): never named
+        _DEFAULTS[benchmark] = defaults
+    return _DEFAULTS[benchmark]
 
 
 def variant_of(bandit: dict) -> str:

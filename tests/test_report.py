@@ -487,3 +487,30 @@ def test_settings_in_force_give_each_clusters_longest_held_value_by_hand():
         "hparams/vf_coef": np.column_stack([steps, [0.5, 0.5, 1.0, 1.0]])})  # a tie: the smaller value
     assert settings_in_force([run])[2] == "| A | 2 | 0.002 (75%) | 0.5 (50%) | 1,234 |"
     assert settings_in_force([Run("p", "pybullet", "A", "ultho", 5.0, 10, 2, 4, 1.0, search_space=space)]) == []
+
+
+def test_labels_name_the_credit_the_rotation_and_the_settings_fixed_runs_differ_in():
+    """The authors' PyBullet configuration beside the paper's: PPO at 5 epochs is its own method (PPO's runs
+    disagree on update_epochs, and 5 is not the script's default), PPO at the defaults keeps the plain name."""
+    paper = {"learning_rate": [2e-4, 5e-4, 7e-4], "minibatch_size": [64, 128, 256], "vf_coef": [0.25, 0.5, 1.0]}
+    epochs = {"update_epochs": [10, 5]}
+
+    def made(kind, settings=None, space=None, variant="ucb:level:none", utility="value"):
+        return Run("p", "pybullet", "HopperBulletEnv-v0", kind, 5.0 if space else None, 10 if space else None, 1, 1,
+                   1.0, search_space=space, variant=variant, utility=utility,
+                   settings={"seed": 7, "update_epochs": 10, "learning_rate": 2e-4, **(settings or {})})
+
+    runs = [made("ppo"), made("ppo", {"update_epochs": 5, "seed": 3}), made("ultho", space=paper),
+            made("ultho", {"update_epochs": 5}, space=epochs, utility="authors-return"),
+            made("ultho", space=epochs, variant="round-robin:level:none"),
+            made("ultho", space=paper, variant="round-robin:level:none")]
+    study = Study()
+    study.runs = runs
+    study.label_methods()
+    assert [r.label for r in runs] == [
+        "PPO", "PPO, update_epochs=5", "ULTHO (c=5, W=10)", "ULTHO authors-return (c=5, W=10) on update_epochs=10/5",
+        "Round robin on update_epochs=10/5", "Round robin"]
+    alone = [made("ppo", {"update_epochs": 5})]  # every fixed-settings run alike: nothing to tell apart
+    study.runs = alone
+    study.label_methods()
+    assert alone[0].label == "PPO"
