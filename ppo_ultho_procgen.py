@@ -279,14 +279,19 @@ class RewardNormalizer:
         self.mean, self.var, self.count = 0.0, 1.0, 1e-4
 
     def __call__(self, reward: np.ndarray, done: np.ndarray) -> np.ndarray:
-        self.returns = self.returns * self.gamma * (1 - done) + reward
+        """``done``: boolean, the environments whose episode ended with this reward."""
+        self.returns = self.returns * self.gamma + reward
         batch_mean, batch_var, batch_count = self.returns.mean(), self.returns.var(), len(self.returns)
         delta, total = batch_mean - self.mean, self.count + batch_count
         self.mean = self.mean + delta * batch_count / total
         self.var = (self.var * self.count + batch_var * batch_count
                     + delta**2 * self.count * batch_count / total) / total
         self.count = total
-        return np.clip(reward / np.sqrt(self.var + self.epsilon), -10, 10)
+        normalized = np.clip(reward / np.sqrt(self.var + self.epsilon), -10, 10)
+        # Zeroed after the update, as gym's wrapper does: an episode's last reward counts in its own return,
+        # and the next episode's return starts from nothing.
+        self.returns[done] = 0.0
+        return normalized
 
     def state_dict(self) -> dict:
         return {"returns": self.returns.copy(), "mean": self.mean, "var": self.var, "count": self.count}

@@ -168,6 +168,75 @@ def test_non_finite_loss_stops_and_keeps_last_good_checkpoint(tmp_path):
     assert not (tmp_path / "nan" / "summary.json").exists()
 
 
+def test_reward_normalizer_zeroes_a_finished_episodes_return_after_normalizing_its_last_reward():
+    # gym's NormalizeReward (CleanRL's ppo_procgen.py) by hand: two environments, gamma 0.5, the running statistics
+    # starting at mean 0, variance 1 from a count of 1e-4; environment 0's episode ends at step 2.
+    from ppo_ultho_procgen import RewardNormalizer
+
+    normalizer = RewardNormalizer(num_envs=2, gamma=0.5)
+
+    # Step 1: rewards (1, 0), nothing ends. Discounted returns (1, 0): batch mean 0.5, variance 0.25, 2 samples.
+    rewards = normalizer(np.array([1.0, 0.0]), np.array([False, False]))
+    count = 1e-4 + 2
+    mean = 0.5 * 2 / count
+    var = (1.0 * 1e-4 + 0.25 * 2 + 0.5**2 * 1e-4 * 2 / count) / count
+    np.testing.assert_allclose(rewards, [1.0 / math.sqrt(var + 1e-8), 0.0], rtol=1e-12)
+    np.testing.assert_array_equal(normalizer.returns, [1.0, 0.0])
+
+    # Step 2: rewards (2, 0), environment 0's episode ends with this reward. Its last reward still counts in its
+    # own return, 0.5 * 1 + 2 = 2.5: returns (2.5, 0), batch mean 1.25, variance 1.5625 (the early reset gave
+    # (2, 0)). Only then is its return zeroed.
+    rewards = normalizer(np.array([2.0, 0.0]), np.array([True, False]))
+    delta, previous_count, count = 1.25 - mean, count, count + 2
+    mean = mean + delta * 2 / count
+    var = (var * previous_count + 1.5625 * 2 + delta**2 * previous_count * 2 / count) / count
+    np.testing.assert_allclose(rewards, [2.0 / math.sqrt(var + 1e-8), 0.0], rtol=1e-12)
+    np.testing.assert_array_equal(normalizer.returns, [0.0, 0.0])
+
+    # Step 3: rewards (4, 1). The new episode's return is its own reward alone, 4 (the early reset gave
+    # 0.5 * 2 + 4 = 5: the last episode's final reward leaked in); environment 1's goes on, 0.5 * 0 + 1 = 1.
+    # Returns (4, 1): batch mean 2.5, variance 2.25.
+    rewards = normalizer(np.array([4.0, 1.0]), np.array([False, False]))
+    delta, previous_count, count = 2.5 - mean, count, count + 2
+    mean = mean + delta * 2 / count
+    var = (var * previous_count + 2.25 * 2 + delta**2 * previous_count * 2 / count) / count
+    np.testing.assert_array_equal(normalizer.returns, [4.0, 1.0])
+    np.testing.assert_allclose(rewards, np.array([4.0, 1.0]) / math.sqrt(var + 1e-8), rtol=1e-12)
+    assert normalizer.count == count and math.isclose(normalizer.mean, mean, rel_tol=1e-12)
+
+
+def test_reward_normalizer_equals_gyms_normalize_reward_over_many_episodes():
+    # The old gym that procgen installs has the wrapper CleanRL's ppo_procgen.py uses; fed the same rewards and
+    # episode ends (an environment that replays them), it must give the same normalized rewards, clipped to +-10
+    # as CleanRL's TransformReward does after it.
+    import gym
+    from gym.wrappers import NormalizeReward
+
+    from ppo_ultho_procgen import RewardNormalizer
+
+    generator = np.random.default_rng(0)
+    steps = [(generator.normal(0, 3, size=4) * (generator.random(4) < 0.3), generator.random(4) < 0.1)
+             for _ in range(300)]
+    steps.append((np.array([1000.0, 0.0, 0.0, 0.0]), np.zeros(4, bool)))  # far beyond 10 standard deviations
+
+    class Replay(gym.Env):
+        num_envs, is_vector_env = 4, True
+
+        def __init__(self):
+            self.steps = iter(steps)
+
+        def step(self, action):
+            reward, done = next(self.steps)
+            return None, reward, done, np.zeros(4, bool), {}
+
+    gyms, ours = NormalizeReward(Replay(), gamma=0.999), RewardNormalizer(4, gamma=0.999)
+    for reward, done in steps:
+        expected = np.clip(gyms.step(None)[1], -10, 10)
+        np.testing.assert_allclose(ours(reward, done), expected, rtol=1e-12, atol=0)
+        np.testing.assert_allclose(ours.returns, gyms.returns, rtol=1e-12, atol=0)
+    assert expected[0] == 10.0
+
+
 BAD_INPUTS = [
     (["--env-id", "pong"], "pong"),
     (["--env-id", "starpilot-v0"], "starpilot-v0"),
