@@ -56,7 +56,7 @@ from ultho_bandit import ULTHO, Number, format_value
 
 STATE_FORMAT = 1
 STATE_SUFFIX = ".ultho.json"
-Utility = Literal["value", "return"]
+Utility = Literal["value", "return", "authors-return"]
 
 _RULES: dict[str, tuple[Callable[[Number], bool], str]] = {
     "learning_rate": (lambda v: v > 0, "a number > 0"),
@@ -171,8 +171,9 @@ class ULTHOCallback(BaseCallback):
         c: the bandit's exploration coefficient (Eqs. 4-5). Paper grid: 1, 5.
         window: W, the number of recent credits averaged into a utility (Eq. 6). Paper grid: 10, 50, 100.
         utility: what credits a choice: ``"value"`` (the mean value estimate over the next rollout, collected
-            by the policy that choice trained; the paper's signal) or ``"return"`` (that rollout's mean GAE
-            return).
+            by the policy that choice trained; the paper's signal), ``"return"`` (that rollout's mean GAE
+            return) or ``"authors-return"`` (the authors' public code: the mean GAE return of the rollout the
+            choice is made on, credited at once; the first choice of a training is withdrawn uncredited).
         save_path, save_every: every ``save_every`` rollouts (0: never) and when ``learn()`` ends, the model
             and the bandit are saved at :func:`checkpoint_path` ``(save_path, step)``, each atomically, so a
             crash or kill loses at most ``save_every`` rollouts; :func:`latest_checkpoint` finds the newest.
@@ -200,8 +201,11 @@ class ULTHOCallback(BaseCallback):
             for name in search_space:
                 if name not in _RULES:
                     raise ValueError(f"ULTHOCallback: unknown cluster {name!r}; known: {', '.join(CLUSTERS)}")
-        if utility not in ("value", "return"):
-            raise ValueError(f"ULTHOCallback: utility={utility!r} must be 'value' or 'return'")
+        if utility not in ("value", "return", "authors-return"):
+            raise ValueError(f"ULTHOCallback: utility={utility!r} must be 'value', 'return' or 'authors-return'")
+        if utility == "authors-return" and bandit_options.get("credit") == "improvement":
+            raise ValueError("ULTHOCallback: credit='improvement' does not go with utility='authors-return' (a "
+                             "choice would be measured against its own credit)")
         try:
             self.bandit = ULTHO(search_space, c=c, window=window, **bandit_options)
         except ValueError as err:
@@ -222,6 +226,7 @@ class ULTHOCallback(BaseCallback):
         self._saved_at_step: int | None = None  # set by load(): the model must be at this step
         self._rollouts = 0  # rollout ends seen, for save_every
         self._checkpointed_step: int | None = None
+        self._first_withdrawn = False  # authors-return: the first choice of a training is never credited
 
     # ------------------------------------------------------------------ SB3's hooks
     def _init_callback(self) -> None:
@@ -283,6 +288,13 @@ class ULTHOCallback(BaseCallback):
             credit = measured
             self.bandit.update(credit)
         name, value = self.bandit.select(before=measured)
+        if self.utility == "authors-return":  # the authors' code credits the choice made now, except the first
+            if self._first_withdrawn:
+                credit = measured
+                self.bandit.update(credit)
+            else:
+                self.bandit.withdraw()
+                self._first_withdrawn = True
         apply_setting(model, name, value)
         self.chosen[name] = value
         if name == "gae_lambda":
@@ -324,6 +336,7 @@ class ULTHOCallback(BaseCallback):
             "save_path": self.save_path,
             "save_every": self.save_every,
             "chosen": dict(self.chosen),
+            "first_withdrawn": self._first_withdrawn,
             "bandit": self.bandit.state_dict(),
         }
 
@@ -365,5 +378,6 @@ class ULTHOCallback(BaseCallback):
                for name, value in chosen.items()) or not isinstance(steps, int) or steps < 0:
             raise ValueError(f"ULTHOCallback.load: {target} is malformed: chosen values {chosen} or step {steps!r}")
         callback.chosen = chosen
+        callback._first_withdrawn = bool(state.get("first_withdrawn", False))
         callback._saved_at_step = steps
         return callback
