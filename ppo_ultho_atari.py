@@ -247,6 +247,11 @@ def game_seeds(seed: int, env_indices: np.ndarray, game_numbers: np.ndarray) -> 
                      for e, g in zip(env_indices, game_numbers)], dtype=np.int64)
 
 
+# The environment index of the evaluation games in game_seeds' key: no training environment has it, so an
+# evaluation game is never a training game, and runs with neighbouring seeds share none.
+EVAL_ENV = 2**32 - 1
+
+
 def replay(envs: AtariVectorEnv, seeds: np.ndarray, histories: list[np.ndarray]) -> tuple[np.ndarray, dict]:
     """Rebuilds every environment's game in progress, since the native environment's state cannot be saved:
     each game restarts from its seed and repeats its actions. The restarts are staggered so that every replay
@@ -616,8 +621,7 @@ def evaluate(agent: Agent, args: Args, device: torch.device) -> list[float]:
     while len(returns) < args.eval_episodes:
         n = min(args.eval_episodes - len(returns), 64)
         envs = make_envs(args, n)
-        first_seed = args.seed + 1_000_000 + len(returns)
-        obs, _ = envs.reset(seed=np.arange(first_seed, first_seed + n))
+        obs, _ = envs.reset(seed=game_seeds(args.seed, np.full(n, EVAL_ENV), np.arange(len(returns), len(returns) + n)))
         total, running = np.zeros(n), np.ones(n, dtype=bool)
         while running.any():
             with torch.no_grad():

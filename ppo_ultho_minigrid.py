@@ -197,6 +197,12 @@ def make_envs(env_id: str, num_envs: int) -> gym.vector.SyncVectorEnv:
     )
 
 
+def episode_seed(*key: int) -> int:
+    """An environment seed drawn from the key (run seed, purpose, environment, episode): distinct streams for
+    training and evaluation, and no episode shared between runs with neighbouring seeds."""
+    return int(np.random.SeedSequence(list(key)).generate_state(1)[0])
+
+
 MINIGRID_GEN_OBS = MiniGridEnv.gen_obs
 OUTSIDE_GRID = Wall()  # what Grid.slice returns beyond the grid's edge; only read, so one instance serves all
 EMPTY_CODE, UNSEEN_CODE = (OBJECT_TO_IDX["empty"], 0, 0), (OBJECT_TO_IDX["unseen"], 0, 0)
@@ -548,8 +554,9 @@ def evaluate(agent: Agent, args: Args, device: torch.device) -> list[float]:
     while len(returns) < args.eval_episodes:
         n = min(args.eval_episodes - len(returns), 64)
         envs = make_envs(args.env_id, n)
-        first_seed = args.seed + 1_000_000 + len(returns)
-        obs, _ = envs.reset(seed=[first_seed + k for k in range(n)])
+        # Drawn, not consecutive: seed + offset + k would give runs with neighbouring seeds nearly the same
+        # evaluation episodes (training's seed + k, CleanRL's, stays as it is).
+        obs, _ = envs.reset(seed=[episode_seed(args.seed, 1, len(returns) + k) for k in range(n)])
         total, running = np.zeros(n), np.ones(n, dtype=bool)
         while running.any():
             with torch.no_grad():

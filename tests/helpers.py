@@ -55,6 +55,29 @@ def kill_after_first_checkpoint(script: str, run_dir: str, *args: str, timeout: 
     process.wait()
 
 
+def evaluation_seeds(script, monkeypatch, *evaluate_args) -> list[int]:
+    """The seeds with which ``script.evaluate(*evaluate_args)`` resets its environments: a spy on the script's
+    make_envs records them, while the environments and the episodes played are the real ones."""
+    seeds: list[int] = []
+    make_envs = script.make_envs
+
+    def recording_make_envs(*args, **kwargs):
+        envs = make_envs(*args, **kwargs)
+        reset = envs.reset
+
+        def recording_reset(*, seed=None, options=None):
+            seeds.extend(np.asarray(seed).tolist())
+            return reset(seed=seed, options=options)
+
+        envs.reset = recording_reset
+        return envs
+
+    with monkeypatch.context() as patch:
+        patch.setattr(script, "make_envs", recording_make_envs)
+        script.evaluate(*evaluate_args)
+    return seeds
+
+
 def summary(run_dir: str) -> dict:
     with open(os.path.join(run_dir, "summary.json")) as f:
         return json.load(f)

@@ -10,8 +10,8 @@ import torch
 from helpers import (
     assert_authors_credit_timing_and_exact_resume,
     assert_bf16_resume_equals_uninterrupted, assert_existing_run_and_foreign_checkpoint_refused, assert_refused,
-    bf16_against_float32, kill_after_first_checkpoint, real_rollout, run, run_bad_inputs, run_concurrently,
-    run_ok, scalars, summary,
+    bf16_against_float32, evaluation_seeds, kill_after_first_checkpoint, real_rollout, run, run_bad_inputs,
+    run_concurrently, run_ok, scalars, summary,
 )
 from ultho_bandit import ULTHO
 
@@ -169,6 +169,28 @@ def test_bf16_gradient_agrees_with_float32_on_a_real_rollout(seed):
     assert agreement["cosine"] > 0.99, agreement
     assert 0 < agreement["relative_norm_difference"] < 0.15, agreement  # > 0: bf16 was in effect
     assert 0 < agreement["ratio_deviation"] < 1e-3, agreement
+
+
+def test_evaluation_seeds_are_shared_by_no_neighbouring_run_and_no_training_game(monkeypatch):
+    # The evaluation played with a fresh network for run seeds 1 and 2, its resets recorded. Consecutive seeds
+    # (seed + 1,000,000 + k) gave the two runs 9 of the same 10 games.
+    import ppo_ultho_atari as script
+
+    seeds = {}
+    for seed in (1, 2):
+        torch.manual_seed(seed)
+        args = script.parse_args(["--env-id", "Qbert", "--seed", str(seed), "--eval-episodes", "10"])
+        envs = script.make_envs(args, 1)
+        agent = script.Agent(envs.single_action_space.n, "float32")
+        envs.close()
+        seeds[seed] = evaluation_seeds(script, monkeypatch, agent, args, torch.device("cpu"))
+        assert len(set(seeds[seed])) == 10
+    assert not set(seeds[1]) & set(seeds[2])
+    # Every training game has a seed of its own, fixed by (run seed, environment, game): none of the first 1,000
+    # games of 8 environments in either run is an evaluation game.
+    environments, games = np.meshgrid(np.arange(8), np.arange(1000))
+    training = {int(s) for seed in (1, 2) for s in script.game_seeds(seed, environments.ravel(), games.ravel())}
+    assert not (set(seeds[1]) | set(seeds[2])) & training
 
 
 def test_non_finite_loss_stops_and_keeps_last_good_checkpoint(tmp_path):

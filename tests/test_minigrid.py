@@ -11,8 +11,8 @@ import torch
 
 from helpers import (
     assert_authors_credit_timing_and_exact_resume,
-    assert_existing_run_and_foreign_checkpoint_refused, assert_refused, kill_after_first_checkpoint, run,
-    run_bad_inputs, run_ok, scalars, summary,
+    assert_existing_run_and_foreign_checkpoint_refused, assert_refused, evaluation_seeds, kill_after_first_checkpoint,
+    run, run_bad_inputs, run_ok, scalars, summary,
 )
 from ultho_bandit import ULTHO
 
@@ -356,3 +356,22 @@ def test_authors_credit_goes_to_the_choice_just_made_and_resumes_exactly(tmp_pat
     args = ["--env-id", "MiniGrid-Empty-5x5-v0", "--num-envs", "8", "--num-steps", "64", "--total-timesteps", "3072",
             "--minibatch-size", "128", "--checkpoint-every", "2", "--runs-dir", str(tmp_path)]
     assert_authors_credit_timing_and_exact_resume(SCRIPT, tmp_path, args)
+
+
+def test_evaluation_seeds_are_shared_by_no_neighbouring_run_and_no_training_episode(monkeypatch):
+    # The evaluation played with a fresh network for run seeds 1 and 2, its resets recorded. Consecutive seeds
+    # (seed + 1,000,000 + k) gave the two runs 9 of the same 10 episodes.
+    import ppo_ultho_minigrid as script
+
+    seeds = {}
+    for seed in (1, 2):
+        args = script.parse_args(["--env-id", "MiniGrid-Empty-5x5-v0", "--seed", str(seed), "--eval-episodes", "10"])
+        envs = script.make_envs(args.env_id, 1)
+        agent = script.Agent(int(np.prod(envs.single_observation_space.shape)), envs.single_action_space.n)
+        envs.close()
+        seeds[seed] = evaluation_seeds(script, monkeypatch, agent, args, torch.device("cpu"))
+        assert len(set(seeds[seed])) == 10
+    assert not set(seeds[1]) & set(seeds[2])
+    # Training seeds its environments seed + k (k < --num-envs) once, at its start; autoreset draws the rest.
+    training = {seed + k for seed in (1, 2) for k in range(script.Args.num_envs)}
+    assert not (set(seeds[1]) | set(seeds[2])) & training

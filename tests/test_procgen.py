@@ -168,6 +168,22 @@ def test_non_finite_loss_stops_and_keeps_last_good_checkpoint(tmp_path):
     assert not (tmp_path / "nan" / "summary.json").exists()
 
 
+def test_neighbouring_runs_test_on_different_levels():
+    # procgen draws each test environment's levels from its own generator seeded by the run's seed, so runs with
+    # seeds 1 and 2 share no test level (the level seeds range over 2^31), and none is a training level.
+    import ppo_ultho_procgen as script
+
+    levels = {}
+    for seed in (1, 2):
+        torch.manual_seed(seed)
+        args = script.parse_args(["--env-id", "coinrun", "--seed", str(seed), "--eval-episodes", "10"])
+        agent = script.Agent((64, 64, 3), 15, "float32")
+        levels[seed] = set(script.evaluate(agent, args, torch.device("cpu"), 3)[1])
+        assert len(levels[seed]) == 10
+    assert not levels[1] & levels[2]
+    assert min(levels[1] | levels[2]) >= 200
+
+
 def test_reward_normalizer_zeroes_a_finished_episodes_return_after_normalizing_its_last_reward():
     # gym's NormalizeReward (CleanRL's ppo_procgen.py) by hand: two environments, gamma 0.5, the running statistics
     # starting at mean 0, variance 1 from a count of 1e-4; environment 0's episode ends at step 2.
