@@ -15,6 +15,7 @@ cluster, which places them on its nodes by the resources each asks for.
 """
 
 import argparse
+import ast
 import concurrent.futures
 import contextlib
 import io
@@ -28,7 +29,7 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Optional
 
-from ultho_bandit import CREDITS, SCALES, STRATEGIES, format_value
+from ultho_bandit import CREDITS, SCALES, STRATEGIES, format_value, parse_clusters
 from ultho_runs import (RunFailed, UsageError, atomic_write_json, complete_run, parse_split_args, print_error,
                         read_json, resolve_script, run_state, script_command)
 
@@ -36,7 +37,7 @@ TOOL = "sweep.py"
 SWEEP_FORMAT = 1
 RELAY_TOOL = os.path.join(os.path.dirname(os.path.abspath(__file__)), "relay_ultho.py")
 HPO_TOOL = os.path.join(os.path.dirname(os.path.abspath(__file__)), "hpo_baselines.py")
-METHODS = ("ppo", "ultho", "relay", "pbt", "pb2", "random")
+METHODS = ("ppo", "ultho", "relay", "grid", "pbt", "pb2", "random")
 HPO_METHODS = ("pbt", "pb2", "random")
 """Studies of hpo_baselines.py: --population trials of the budget each."""
 PAPER_VARIANT = ("ucb", "level", "none")
@@ -93,6 +94,8 @@ class Run:
     """a relay's full ULTHO run, reused with --from when the grid has it"""
     variant: Optional[str] = None
     """the bandit's strategy:credit:scale (ultho and relay runs)"""
+    settings: Optional[dict] = None
+    """a grid run's fixed settings, {name: value}"""
     status: str = "pending"
     attempts: int = 0
     error: Optional[str] = None
@@ -127,14 +130,50 @@ class Run:
         return script_command(self.script, self.args, self.path, resume=False)
 
 
+def script_constant(script: str, name: str):
+    """A literal module-level constant of a training script (SEARCH_SPACE, TUNABLE), read from its source:
+    importing the script would start torch and its environments. None when the script has no such literal."""
+    with open(script, encoding="utf-8") as f:
+        tree = ast.parse(f.read())
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and [getattr(t, "id", None) for t in node.targets] == [name]:
+            try:
+                return ast.literal_eval(node.value)
+            except ValueError:
+                return None
+    return None
+
+
+def fixed_settings_grid(script: str, items: Optional[list[str]]) -> list[dict]:
+    """Every combination of the clusters' values, in their order (the first cluster varies slowest): the script's
+    own search space by default, else the ``--grid-clusters`` items (NAME takes the script's values,
+    NAME=V1,V2,... sets them, as --ultho-clusters does)."""
+    space = script_constant(script, "SEARCH_SPACE") or {}
+    allowed = script_constant(script, "TUNABLE") or tuple(space)
+    try:
+        clusters = parse_clusters(items or list(space), space, allowed=allowed)
+    except ValueError as err:
+        raise UsageError(f"--grid-clusters for {os.path.basename(script)}: {err}") from None
+    return [dict(zip(clusters, values)) for values in itertools.product(*clusters.values())]
+
+
+def setting_flags(settings: dict) -> list[str]:
+    """``{"learning_rate": 0.001}`` -> ``["--learning-rate", "0.001"]``, the scripts' own flags."""
+    return [token for name, value in settings.items() for token in (f"--{name.replace('_', '-')}",
+                                                                     format_value(value))]
+
+
 def expand(scripts: list[str], env_ids: list[str], methods: list[str], points: list[tuple[float, int]],
            seeds: list[int], total_timesteps: Optional[int], extra_args: list[str], out: str,
            variants: tuple[tuple[str, str, str], ...] = (PAPER_VARIANT,), population: int = 4,
-           study_resources: tuple[str, ...] = ()) -> list[Run]:
+           study_resources: tuple[str, ...] = (), grid_clusters: Optional[list[str]] = None) -> list[Run]:
     """Every grid point in a fixed order; a relay follows the ULTHO run it reuses. ``points``: the (c, W);
     ``variants``: the (strategy, credit, scale) of the bandit; ``study_resources``: where a study's Ray runs
-    its trials (--ray-address or --num-cpus)."""
+    its trials (--ray-address or --num-cpus); ``grid_clusters``: the clusters of the grid method's fixed settings
+    (default: each script's search space)."""
     runs = []
+    grids = {script: fixed_settings_grid(resolve_script(script), grid_clusters) for script in scripts} \
+        if "grid" in methods else {}
     budget = ["--total-timesteps", str(total_timesteps)] if total_timesteps is not None else []
     for script, env_id, seed in itertools.product(scripts, env_ids, seeds):
         stem = os.path.splitext(os.path.basename(script))[0].removeprefix("ppo_ultho_")
@@ -163,6 +202,12 @@ def expand(scripts: list[str], env_ids: list[str], methods: list[str], points: l
                 runs.append(relay)
                 if ultho is not None:
                     ultho.dependents.append(relay)
+        for settings in grids.get(script, []):
+            tag = "_".join(f"{name}-{format_value(value)}" for name, value in settings.items())
+            name = f"{prefix}__grid_{tag}__s{seed}"
+            runs.append(Run(name, script, env_id, "grid", None, None, seed, os.path.join(out, "runs", name),
+                            [*base, "--no-ultho", *setting_flags(settings), *extra_args, "--quiet"],
+                            settings=settings))
         for method in (m for m in HPO_METHODS if m in methods):
             name = f"{prefix}__{method}__s{seed}"
             size = ["--samples" if method == "random" else "--population", str(population)]
@@ -215,7 +260,7 @@ def restore_exported(runs: list[Run], out: str, exported: str) -> list[Run]:
 def index(grid: dict, runs: list[Run], out: str) -> dict:
     return {"format": SWEEP_FORMAT, "grid": grid, "runs": [{
         "name": r.name, "script": os.path.basename(r.script), "benchmark": r.benchmark, "env_id": r.env_id,
-        "method": r.method, "c": r.c, "window": r.window, "variant": r.variant, "seed": r.seed,
+        "method": r.method, "c": r.c, "window": r.window, "variant": r.variant, "settings": r.settings, "seed": r.seed,
         "path": os.path.relpath(r.path, out),
         "status": r.status, "attempts": r.attempts, "error": r.error} for r in runs]}
 
@@ -360,9 +405,13 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
                       "environments and budget, methods ppo ultho relay, c in {1, 5}, W in {10, 50, 100}, seeds 1-5")
     grid.add_argument("--scripts", nargs="+", metavar="SCRIPT", help="training scripts")
     grid.add_argument("--env-ids", nargs="+", metavar="ENV_ID", help="environment ids (each with every script)")
-    grid.add_argument("--methods", nargs="+", choices=METHODS, help="ppo ultho relay (the paper's grid) and the "
-                      "HPO baselines of hpo_baselines.py, pbt pb2 random (default: a preset's ppo ultho relay, "
-                      "else ppo ultho)")
+    grid.add_argument("--methods", nargs="+", choices=METHODS, help="ppo ultho relay (the paper's grid), grid "
+                      "(every fixed setting of the search space, each a run with --no-ultho) and the HPO baselines "
+                      "of hpo_baselines.py, pbt pb2 random (default: a preset's ppo ultho relay, else ppo ultho)")
+    grid.add_argument("--grid-clusters", nargs="+", metavar="ITEM",
+                      help="the grid method's clusters: every combination of their values is a fixed-settings run "
+                           "(NAME takes the script's values, NAME=V1,V2,... sets them; default: the script's search "
+                           "space, e.g. 27 settings for MiniGrid)")
     grid.add_argument("--population", type=int, default=4, metavar="N",
                       help="trials of a pbt or pb2 study, samples of a random one (default 4)")
     grid.add_argument("--c", nargs="+", type=float, metavar="C", help="ULTHO's exploration coefficients (default 5)")
@@ -442,14 +491,20 @@ def main(argv: list[str]) -> int:
         grid = {"scripts": [os.path.basename(s) for s in scripts], "env_ids": env_ids, "methods": methods,
                 "c": c_values, "window": windows, "points": [[c, w] for c, w in points],
                 "variants": [":".join(v) for v in variants], "seeds": seeds, "population": args.population,
-                "total_timesteps": total_timesteps,
+                "total_timesteps": total_timesteps, "grid_clusters": args.grid_clusters,
                 "extra_args": extra_args}
         # A study's trials go to the same Ray cluster as the runs, or to a Ray instance of its own with the CPUs
         # of one run.
         study_resources = (("--ray-address", args.ray_address) if args.ray_address else
                            ("--num-cpus", str(max(1, int(args.cpus_per_run)))))
+        if args.grid_clusters and "grid" not in methods:
+            raise UsageError("--grid-clusters sets the grid method's clusters; add grid to --methods")
         runs = expand(scripts, env_ids, methods, points, seeds, total_timesteps, extra_args, out, tuple(variants),
-                      args.population, study_resources)
+                      args.population, study_resources, args.grid_clusters)
+        fixed = {token for run in runs if run.method == "grid" for token in setting_flags(run.settings)[::2]}
+        for token in extra_args:
+            if token.split("=", 1)[0] in fixed:
+                raise UsageError(f"{token.split('=', 1)[0]} after -- is set by the grid method; use --grid-clusters")
 
         if args.dry_run:
             for run in runs:

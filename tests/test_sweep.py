@@ -21,8 +21,8 @@ SCRIPT = "ppo_ultho_minigrid.py"
 TINY = ["--scripts", SCRIPT, "--env-ids", "MiniGrid-Empty-5x5-v0", "--total-timesteps", "512", "--", "--num-envs", "4",
         "--num-steps", "64", "--minibatch-size", "64", "--ultho-clusters", "learning_rate", "minibatch_size=32,64",
         "--eval-episodes", "0"]
-RUN_FIELDS = {"name", "script", "benchmark", "env_id", "method", "c", "window", "variant", "seed", "path", "status",
-              "attempts", "error"}
+RUN_FIELDS = {"name", "script", "benchmark", "env_id", "method", "c", "window", "variant", "settings", "seed", "path",
+              "status", "attempts", "error"}
 
 
 def index(out) -> dict:
@@ -74,6 +74,46 @@ def test_dry_run_of_a_custom_grid_counts_steps_without_an_hours_estimate(tmp_pat
                  "--population", "2", "--total-timesteps", "1024", "--dry-run", "--out", str(tmp_path / "s"))
     assert result.returncode == 0, result.stderr
     assert result.stderr.strip() == f"2 runs, {1024 + 2 * 1024:,} environment steps"
+
+
+def test_the_grid_method_is_every_fixed_setting_of_the_search_space(tmp_path):
+    result = run(TOOL, "--paper", "minigrid", "--methods", "grid", "--env-ids", "MiniGrid-DoorKey-6x6-v0", "--seeds",
+                 "1", "--dry-run", "--out", str(tmp_path / "s"))
+    assert result.returncode == 0, result.stderr
+    commands = result.stdout.strip().splitlines()
+    assert len(commands) == 27 and result.stderr.strip().startswith(f"27 runs, {27 * 500_000:,} environment steps")
+    # The first cluster varies slowest; each run is the script with --no-ultho and its three values.
+    assert "--no-ultho --learning-rate 0.001 --minibatch-size 128 --vf-coef 0.25 --quiet" in commands[0]
+    assert "--no-ultho --learning-rate 0.001 --minibatch-size 128 --vf-coef 0.5 --quiet" in commands[1]
+    assert "--no-ultho --learning-rate 0.005 --minibatch-size 512 --vf-coef 1.0 --quiet" in commands[26]
+    assert commands[26].endswith(
+        "--run-name minigrid__MiniGrid-DoorKey-6x6-v0__grid_learning_rate-0.005_minibatch_size-512_vf_coef-1.0__s1")
+    assert len({c.split("--run-name ")[1] for c in commands}) == 27
+    chosen = run(TOOL, "--paper", "pybullet", "--methods", "grid", "--grid-clusters", "update_epochs=10,5",
+                 "learning_rate", "--env-ids", "HopperBulletEnv-v0", "--seeds", "1", "--dry-run")
+    assert chosen.returncode == 0, chosen.stderr
+    assert [c.split("--no-ultho ")[1].split(" --quiet")[0] for c in chosen.stdout.strip().splitlines()] == [
+        f"--update-epochs {e} --learning-rate {lr}" for e in (10, 5) for lr in ("0.0002", "0.0005", "0.0007")]
+
+
+def test_a_grid_sweep_runs_each_fixed_setting(tmp_path):
+    out = tmp_path / "grid"
+    result = run(TOOL, "--scripts", SCRIPT, "--env-ids", "MiniGrid-Empty-5x5-v0", "--methods", "grid",
+                 "--grid-clusters", "minibatch_size=32,64", "vf_coef=0.5,1.0", "--total-timesteps", "512", "--workers",
+                 "2", "--out", str(out), "--", "--num-envs", "4", "--num-steps", "64", "--eval-episodes", "0")
+    assert result.returncode == 0, result.stderr
+    record = index(out)
+    assert [r["settings"] for r in record["runs"]] == [{"minibatch_size": 32, "vf_coef": 0.5},
+                                                       {"minibatch_size": 32, "vf_coef": 1.0},
+                                                       {"minibatch_size": 64, "vf_coef": 0.5},
+                                                       {"minibatch_size": 64, "vf_coef": 1.0}]
+    for entry in record["runs"]:
+        assert entry["method"] == "grid" and entry["status"] == "done"
+        done = summary(os.path.join(out, entry["path"]))
+        assert done["ultho"] is False and done["bandit"] is None
+        assert {name: done["settings"][name] for name in entry["settings"]} == entry["settings"]
+        assert {name: done["settings_in_force"][name] for name in entry["settings"]} == entry["settings"]
+    assert record["grid"]["grid_clusters"] == ["minibatch_size=32,64", "vf_coef=0.5,1.0"]
 
 
 def test_variants_name_their_runs_and_pass_their_options(tmp_path):
@@ -135,7 +175,7 @@ def test_local_sweep_runs_every_grid_point_and_indexes_it(local_sweep):
                               "methods": ["ppo", "ultho", "relay"], "c": [5.0], "window": [10],
                               "points": [[5.0, 10]], "variants": ["ucb:level:none"], "seeds": [1],
                               "population": 4,
-                              "total_timesteps": 512, "extra_args": TINY[TINY.index("--") + 1:]}
+                              "total_timesteps": 512, "grid_clusters": None, "extra_args": TINY[TINY.index("--") + 1:]}
     runs = {r["method"]: r for r in record["runs"]}
     assert len(record["runs"]) == 3 and all(set(r) == RUN_FIELDS for r in record["runs"])
     assert all(r["status"] == "done" and r["attempts"] == 1 and r["error"] is None for r in record["runs"])
@@ -291,6 +331,9 @@ def test_sweep_through_a_real_ray_instance(ray_head, tmp_path):
 
 BAD_INPUTS = [
     ([], "give --paper PRESET, or --scripts and --env-ids"),
+    (["--paper", "minigrid", "--grid-clusters", "learning_rate"], "add grid to --methods"),
+    (["--paper", "minigrid", "--methods", "grid", "--grid-clusters", "momentum"], "unknown cluster 'momentum'"),
+    (["--paper", "minigrid", "--methods", "grid", "--", "--vf-coef", "2"], "--vf-coef after -- is set by the grid"),
     (["--paper", "mujoco"], "invalid choice: 'mujoco'"),
     (["--scripts", "ppo_ultho_nothing.py", "--env-ids", "X"], "script ppo_ultho_nothing.py: no such file"),
     (["--paper", "minigrid", "--seeds", "1", "1"], "--seeds 1 1: a value is given twice"),
