@@ -33,7 +33,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from common import REPO, machine
 
 sys.path.insert(0, REPO)
-from ultho_report import RETURN_TAG, Study
+from ultho_reporting.runs import RETURN_TAG, Study
 
 PRECISIONS = ("float32", "bf16")
 

@@ -1,6 +1,7 @@
-"""The reference scores stand three times: in ultho_report.py, which normalizes every run it reports; in the ALE
-and Procgen scripts, which write normalized scores into summary.json and TensorBoard (each script stays one
-self-contained file); and in docs/paper.md's tables. All must give the same numbers for every game."""
+"""The reference scores stand three times: in the report (ultho_reporting/references.py), which normalizes every
+run it reports; in the ALE and Procgen scripts, which write normalized scores into summary.json and TensorBoard
+(each script stays one self-contained file); and in docs/paper.md's tables. All must give the same numbers for
+every game."""
 
 import os
 import re
@@ -10,7 +11,7 @@ import pytest
 import ppo_ultho_atari
 import ppo_ultho_procgen
 from helpers import REPO
-from ultho_report import ALE_HUMAN, PROCGEN_EASY, PYBULLET_REFERENCE, normalized
+from ultho_reporting.references import ALE_HUMAN, PROCGEN_EASY, PYBULLET_REFERENCE, normalized
 
 
 def test_the_scripts_and_the_report_hold_the_same_reference_scores():

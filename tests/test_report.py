@@ -11,9 +11,11 @@ import pytest
 
 from helpers import run, run_concurrently, scalars, summary
 from hpo_study import SCRIPT_ARGS
-from ultho_report import (PROCGEN_EASY, PYBULLET_REFERENCE, REFERENCES, Efficiency, Run, Study, aggregate_with_interval,
-                          coverage_groups, decisions_by_environment, exploration_ratio, game_of, normalized, raw_score,
-                          reference_of, settings_in_force, steps_to_threshold)
+from ultho_reporting.decisions import cumulative_shares, exploration_ratio
+from ultho_reporting.references import PROCGEN_EASY, PYBULLET_REFERENCE, REFERENCES, game_of, normalized, reference_of
+from ultho_reporting.runs import Run, Study, raw_score
+from ultho_reporting.scores import Efficiency, aggregate_with_interval, coverage_groups, steps_to_threshold
+from ultho_reporting.sections import decisions_by_environment, settings_in_force
 
 REPORT = "ultho_report.py"
 SCRIPT = "ppo_ultho_minigrid.py"
@@ -246,8 +248,6 @@ def test_same_seed_gives_identical_intervals(reports):
 
 def test_decision_shares_come_from_the_selections(reports, study):
     """The per-run shares end at the run's selection counts: the credited ones in summary.json plus the last."""
-    from ultho_report import Study, cumulative_shares
-
     reader = Study()
     reader.load_run(str(study / "runs" / f"{ENVS[0]}__ultho_c5_w10__1"))
     (run,) = reader.runs
