@@ -14,7 +14,8 @@ from hpo_study import SCRIPT_ARGS
 from ultho_reporting.decisions import cumulative_shares, exploration_ratio
 from ultho_reporting.references import PROCGEN_EASY, PYBULLET_REFERENCE, REFERENCES, game_of, normalized, reference_of
 from ultho_reporting.runs import Run, Study, raw_score
-from ultho_reporting.scores import Efficiency, aggregate_with_interval, coverage_groups, steps_to_threshold
+from ultho_reporting.scores import (Efficiency, aggregate_with_interval, coverage_groups, efficiency_of,
+                                    steps_to_threshold)
 from ultho_reporting.sections import decisions_by_environment, settings_in_force
 
 REPORT = "ultho_report.py"
@@ -163,6 +164,34 @@ def test_aggregate_table_has_minigrid_returns_as_they_are_over_the_environments_
     with open(reports["a"] / "aggregate.csv") as f:
         narrower = [row["method"] for row in csv.DictReader(f) if row["environments"] == ENVS[0]]
     assert narrower[0] == "PPO" and METHODS[3] in narrower  # compared over the one environment they share
+
+
+def test_runs_shorter_than_the_solve_window_are_scored_at_their_last_step(study, tmp_path):
+    """The tiny runs log at most 4 returns; with a window of 10 each run's running score is the mean of all of
+    them, at its last logged step (before, a threshold some run reached indexed past its curve and stopped the
+    report)."""
+    threshold = 0.05
+    result = run(REPORT, str(study / "runs"), "--out", str(tmp_path / "out"), "--reps", "100", "--no-per-run",
+                 "--solve-window", "10", "--solve-threshold", str(threshold))
+    assert result.returncode == 0 and "Traceback" not in result.stderr, result.stderr
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "A run that logged fewer than 10 returns has a running score only at its last logged step" in report
+    block = report.split("### Sample efficiency")[1].split("\n\n")[2]
+    rows = {line.split(" | ")[0].removeprefix("| "): line.split(" | ")[1:] for line in block.splitlines()[2:]}
+    reached_any = False
+    for method in METHODS[:3]:
+        found = []
+        for run_dir in sorted((study / "runs").iterdir()):
+            s = summary(str(run_dir))
+            label = "PPO" if not s["ultho"] else f"ULTHO (c={s['bandit']['c']:g}, W={s['bandit']['window']})"
+            if label == method and s["env_id"] == ENVS[0]:
+                curve = scalars(str(run_dir))["charts/episodic_return"]
+                assert 1 < len(curve) < 10
+                reached = np.mean([value for _, value in curve]) >= threshold
+                reached_any |= reached
+                found.append((curve[-1][0] if reached else None, s["global_step"]))
+        assert rows[method][0] == Efficiency([f for f, _ in found], [b for _, b in found]).text()
+    assert reached_any, "no tiny run reached the threshold: the old failure was not exercised"
 
 
 def test_a_score_does_not_depend_on_the_other_runs_present(study, reports, tmp_path):
@@ -370,6 +399,23 @@ def test_steps_to_threshold_by_hand():
     assert Efficiency([96_938.7, 120_000], [499_712] * 2).text() == "108k (2/2)"
     assert Efficiency([1_500_000, 1_000_000], [2_000_000] * 2).text() == "1.25M (2/2)"
     assert Efficiency([12_345, 54_321], [499_712] * 2).text() == "33,333 (2/2)"
+
+
+@pytest.mark.parametrize("window", [5, 10])
+def test_a_curve_shorter_than_the_window_is_scored_by_its_mean_at_its_last_step(window):
+    # Three logged returns, fewer than the window: the running score exists once, at the last step (30), and is
+    # the mean of all three, (0.2 + 0.5 + 0.8) / 3 = 0.5, as it is the mean of the first `window` returns at
+    # step `window` of a longer curve. Before, np.convolve swapped its arguments: 3 * [0.3] or 8 * [0.15]...
+    curve = np.array([[10, 0.2], [20, 0.5], [30, 0.8]])
+    assert steps_to_threshold(curve, "minigrid", "MiniGrid-Empty-5x5-v0", 0.5, window) == 30
+    assert steps_to_threshold(curve, "minigrid", "MiniGrid-Empty-5x5-v0", 0.51, window) is None
+    # ...and a low threshold indexed past the curve's end (IndexError).
+    assert steps_to_threshold(curve, "minigrid", "MiniGrid-Empty-5x5-v0", 0.1, window) == 30
+    # Three returns of 1.0 average 1.0, not 3 / window.
+    solved = np.array([[10, 1.0], [20, 1.0], [30, 1.0]])
+    assert steps_to_threshold(solved, "minigrid", "MiniGrid-Empty-5x5-v0", 0.9, window) == 30
+    assert efficiency_of([Run("p", "minigrid", "MiniGrid-Empty-5x5-v0", "ppo", None, None, 1, 30, 1.0, curve=solved,
+                              curve_budget=30)], 0.9, window).text() == "30 (1/1)"
 
 
 def test_each_aggregate_compares_every_method_that_covers_its_environments_over_those_alone():

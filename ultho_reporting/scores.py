@@ -67,13 +67,17 @@ def steps_to_threshold(curve: np.ndarray | None, benchmark: str, env_id: str, th
 
     The running score is the mean of the last ``window`` logged training returns (each the mean return of the
     episodes that ended in one iteration), on the benchmark's fixed scale, so a single lucky iteration does not
-    count as solving the task.
+    count as solving the task. It starts once the window is as full as the curve allows: at the ``window``-th
+    logged return, the mean of all returns so far; a curve with fewer returns than ``window`` has a running
+    score only at its last step, the mean of all its returns.
     """
     reference = reference_of(benchmark, env_id)
     if curve is None or not len(curve) or reference is None:
         return None
     low, high = reference
     scores = (curve[:, 1] - low) / (high - low)
+    # np.convolve swaps its arguments when the curve is the shorter one: the window never exceeds the curve.
+    window = min(window, len(scores))
     running = np.convolve(scores, np.ones(window) / window, mode="valid")
     reached = np.nonzero(running >= threshold)[0]
     return float(curve[reached[0] + window - 1, 0]) if len(reached) else None

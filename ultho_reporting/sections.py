@@ -170,12 +170,15 @@ def efficiency_section(runs: list[Run], benchmark: str, methods: list[str], colo
     # Fixed settings selected as a relay selects needs two seeds of one environment to choose from.
     paired = relays and len(ppo) > len({r.env_id for r in ppo})
     baseline = baseline_of(benchmark)
+    short = any(r.curve is not None and len(r.curve) < window for r in runs)
     lines = ["### Sample efficiency", "",
              f"Steps to solve: the first environment step at which a run's running score (the mean of its last "
              f"{window} logged training returns, each the mean return of the episodes that ended in one "
              f"iteration, on the scale above) reaches {threshold:g}. Each cell: the mean over runs, a run that "
              "never reached it counted with its whole budget (then the mean is a lower bound, marked ≥), and "
              "(runs that reached it / runs)."
+             + (f" A run that logged fewer than {window} returns has a running score only at its last logged step: "
+                "the mean of all its returns." if short else "")
              + (" Relay-ULTHO: its winning run, from that run's start; the last column counts from the relay's "
                 "start instead, its full ULTHO run's steps included (the COI and NOI runs side by side)."
                 if relays else "")
