@@ -150,8 +150,7 @@ def run_trial(config: dict, plan: Plan) -> None:
     checkpoint = tune.get_checkpoint()
     if record is not None and record["complete"]:
         # Tune lost the news that this trial finished (killed right after it): report it again, run nothing.
-        last = record["segments"][-1]
-        tune.report(metrics(last, record))
+        tune.report(metrics(record["segments"][-1], record, plan.final_step))
         return
     start_step, init_from, origin = 0, None, None
     if checkpoint is not None:
@@ -166,42 +165,62 @@ def run_trial(config: dict, plan: Plan) -> None:
         record = {"name": name, "seed": seed, "complete": False, "segments": []}
     # Segments past the checkpoint are run again (a restart after a kill, or an exploit of a trial behind).
     record["segments"] = [s for s in record["segments"] if s["end_step"] <= start_step]
+    record["diverged"] = next((s["diverged"] for s in record["segments"] if s.get("diverged")), None)
     os.makedirs(os.path.join(plan.study_dir, "logs"), exist_ok=True)
     while start_step < plan.final_step:
         end_step = min(start_step + plan.interval, plan.final_step)
-        command = plan.segment_command(name, seed, end_step, settings, init_from)
-        tick = time.time()
-        with open(os.path.join(plan.study_dir, "logs", f"{name}.log"), "a") as log:
-            log.write(f"[{TOOL}] {' '.join(command[1:])}\n")
-            log.flush()
-            status = subprocess.run(command, stdout=log, stderr=log, preexec_fn=die_with_parent).returncode
-        if status != 0:
-            raise RuntimeError(f"{name}: {os.path.basename(plan.script)} exited with status {status} in the segment "
-                               f"to step {end_step} (log: {os.path.join(plan.study_dir, 'logs', name + '.log')})")
+        # A trial that has diverged trains no more, yet reports at every interval to the end of the budget: a
+        # synchronous PBT or PB2 waits at each perturbation for every trial still running, and one that ended
+        # early would leave the others waiting for it for good.
+        if record["diverged"] is None:
+            command = plan.segment_command(name, seed, end_step, settings, init_from)
+            tick = time.time()
+            with open(os.path.join(plan.study_dir, "logs", f"{name}.log"), "a") as log:
+                log.write(f"[{TOOL}] {' '.join(command[1:])}\n")
+                log.flush()
+                status = subprocess.run(command, stdout=log, stderr=log, preexec_fn=die_with_parent).returncode
+            summary = read_json(os.path.join(run_dir, "summary.json"))
+            # Exit status 1 with a summary that records a divergence ends the trial's training: a retry would
+            # replay the same divergence. (The script removes an earlier segment's summary when it starts.)
+            diverged = summary.get("diverged") if status == 1 and summary is not None else None
+            if status != 0 and diverged is None:
+                raise RuntimeError(f"{name}: {os.path.basename(plan.script)} exited with status {status} in the "
+                                   f"segment to step {end_step} (log: "
+                                   f"{os.path.join(plan.study_dir, 'logs', name + '.log')})")
+            record["segments"].append({
+                "start_step": start_step, "end_step": end_step, "settings": settings,
+                "started_from": None if origin is None else {"trial": origin["trial"], "step": origin["step"],
+                                                             "settings": origin["settings"]},
+                "score": summary["final_score"], "diverged": diverged, "wall_time_s": time.time() - tick})
+            record["diverged"] = diverged
         if init_from is not None and init_from != run_dir:
             shutil.rmtree(init_from, ignore_errors=True)
-        summary = read_json(os.path.join(run_dir, "summary.json"))
-        segment = {"start_step": start_step, "end_step": end_step, "settings": settings,
-                   "started_from": None if origin is None else {"trial": origin["trial"], "step": origin["step"],
-                                                                 "settings": origin["settings"]},
-                   "score": summary["final_score"], "wall_time_s": time.time() - tick}
-        record["segments"].append(segment)
         record["complete"] = end_step == plan.final_step
         atomic_write_json(record_path, record)
         with tempfile.TemporaryDirectory(dir=plan.study_dir) as staging:
-            shutil.copy(os.path.join(run_dir, "checkpoint.pt"), staging)
+            if record["diverged"] is None:  # a diverged trial's checkpoint only says where it is: no one copies it
+                shutil.copy(os.path.join(run_dir, "checkpoint.pt"), staging)
             atomic_write_json(os.path.join(staging, CHECKPOINT_RECORD),
                               {"trial": name, "step": end_step, "settings": settings})
-            tune.report(metrics(segment, record), checkpoint=tune.Checkpoint.from_directory(staging))
+            tune.report(metrics(record["segments"][-1], record, end_step),
+                        checkpoint=tune.Checkpoint.from_directory(staging))
         start_step, init_from, origin = end_step, run_dir, {"trial": name, "step": end_step, "settings": settings}
 
 
-def metrics(segment: dict, record: dict) -> dict:
-    """What a trial reports to Tune. Before its first episode has ended a trial has no score: NaN, which Tune's
-    PBT leaves out of the ranking (the trial neither copies nor is copied) while the population stays in step;
-    a missing metric instead would let the trial run ahead of a synchronous population and stall it."""
-    return {"global_step": segment["end_step"], SCORE: math.nan if segment["score"] is None else segment["score"],
-            "steps_run": sum(s["end_step"] - s["start_step"] for s in record["segments"])}
+def metrics(segment: dict, record: dict, global_step: int) -> dict:
+    """What a trial reports to Tune at ``global_step``. Before its first episode has ended a trial has no score,
+    and once it has diverged its network is not finite: NaN, which Tune's PBT leaves out of the ranking (the trial
+    neither copies nor is copied) while the population stays in step; a missing metric instead would let the
+    trial run ahead of a synchronous population and stall it. study.json keeps a diverged trial's last score."""
+    unscored = segment["score"] is None or record.get("diverged") is not None
+    return {"global_step": global_step, SCORE: math.nan if unscored else segment["score"],
+            "steps_run": steps_run(record["segments"]), "diverged": record.get("diverged") is not None}
+
+
+def steps_run(segments: list[dict]) -> int:
+    """The environment steps the segments ran: a segment that diverged stopped at the step its summary names."""
+    return sum((s["diverged"]["global_step"] if s.get("diverged") else s["end_step"]) - s["start_step"]
+               for s in segments)
 
 
 def schedulers() -> tuple[type, type]:
@@ -273,14 +292,15 @@ def study_record(plan: Plan, arguments: dict, status: str) -> dict:
                 observed.append({"score": segment["score"], "trial": name, "step": segment["end_step"]})
             previous = segment
     exploits.sort(key=lambda e: (e["step"], int(e["trial"].split("_")[1])))
-    finished = {n: r for n, r in trials.items() if r["complete"]}
+    # A diverged trial keeps its last score in its entry, but its network is not finite: it is never the best.
+    finished = {n: r for n, r in trials.items() if r["complete"] and r.get("diverged") is None}
     scored = {n: r["segments"][-1]["score"] for n, r in finished.items() if r["segments"][-1]["score"] is not None}
     best = max(scored, key=lambda n: (scored[n], -int(n.split("_")[1]))) if scored else None
     return {
         "format": STUDY_FORMAT, "tool": TOOL, "status": status, "method": plan.method, **arguments,
         "search_space": plan.space, "fixed_settings": plan.fixed,
         "budget": {"steps_per_trial": plan.final_step, "trials": arguments["population"] or arguments["samples"],
-                   "total_steps": sum(s["end_step"] - s["start_step"] for r in trials.values() for s in r["segments"]),
+                   "total_steps": sum(steps_run(r["segments"]) for r in trials.values()),
                    "interval": plan.interval},
         "best_trial": best,
         "best_final_score": scored[best] if best else None,
@@ -289,9 +309,10 @@ def study_record(plan: Plan, arguments: dict, status: str) -> dict:
         "exploits": exploits,
         "trials": [{"name": n, "seed": r["seed"],
                     "run_dir": relative_to(os.path.join(plan.trials_dir, n), plan.study_dir),
-                    "complete": r["complete"], "settings": r["segments"][-1]["settings"] if r["segments"] else None,
+                    "complete": r["complete"], "diverged": r.get("diverged"),
+                    "settings": r["segments"][-1]["settings"] if r["segments"] else None,
                     "final_score": r["segments"][-1]["score"] if r["complete"] else None,
-                    "steps_run": sum(s["end_step"] - s["start_step"] for s in r["segments"]),
+                    "steps_run": steps_run(r["segments"]),
                     "segments": r["segments"]} for n, r in trials.items()],
     }
 
@@ -428,8 +449,9 @@ def study(args: argparse.Namespace, script_args: list[str], log=print) -> dict:
         def on_trial_result(self, iteration, trials, trial, result, **info):
             atomic_write_json(study_path, study_record(plan, arguments, "running"))
             score = result[SCORE]
-            log(f"[hpo] trial_{trial_index(trial.trial_id)} step {result['global_step']}/{plan.final_step}: score "
-                f"{'-' if math.isnan(score) else f'{score:.4g}'} with "
+            log(f"[hpo] trial_{trial_index(trial.trial_id)} step {result['global_step']}/{plan.final_step}: "
+                + ("diverged, trains no more" if result.get("diverged") else
+                   f"score {'-' if math.isnan(score) else f'{score:.4g}'}") + " with "
                 + ", ".join(f"{k}={format_value(v)}" for k, v in plan.settings_of(trial.config).items()))
 
     warnings.filterwarnings("ignore", message="Consider boosting PBT performance")  # our trial is a process

@@ -448,6 +448,7 @@ def main(args: Args) -> None:
     progress = tqdm(total=args.total_timesteps, initial=global_step, unit="step", dynamic_ncols=True,
                     disable=args.quiet or not sys.stderr.isatty())
     start_time, start_step = time.time(), global_step
+    diverged = None  # where the run stopped with non-finite numbers, if it did
     for iteration in range(start_iteration, num_iterations + 1):
         # 1. Collect a rollout with the current policy.
         rollout_start = time.perf_counter()
@@ -565,7 +566,10 @@ def main(args: Args) -> None:
         losses = (loss_sums / num_minibatches).tolist()
         update_seconds += time.perf_counter() - update_start
         if not all(map(math.isfinite, losses[:3])):  # policy, value, entropy
-            stop_non_finite("loss", iteration, global_step, settings, tuned, checkpoint_path, progress, writer)
+            # The weights are no longer finite: the run ends here, summary.json records where, and the
+            # last good checkpoint stays as it was.
+            diverged = {"what": "loss", "iteration": iteration, "global_step": global_step}
+            break
 
         if bandit is not None and args.ultho_utility == "value-after":
             tick = time.perf_counter()
@@ -605,13 +609,16 @@ def main(args: Args) -> None:
     envs.close()
 
     wall_time = elapsed_before + time.time() - start_time
-    eval_returns = evaluate(agent, args, device) if args.eval_episodes > 0 else []
+    eval_returns = evaluate(agent, args, device) if args.eval_episodes > 0 and diverged is None else []
     if eval_returns:
         writer.add_scalar("eval/return", float(np.mean(eval_returns)), global_step)
     writer.close()
-    write_summary(run_dir, args, config, settings, tuned, bandit, global_step, num_iterations, wall_time,
+    write_summary(run_dir, args, config, settings, tuned, bandit, global_step,
+                  num_iterations if diverged is None else diverged["iteration"], wall_time,
                   ultho_seconds, rollout_seconds, update_seconds, device, recent_returns, recent_lengths,
-                  eval_returns)
+                  eval_returns, diverged)
+    if diverged is not None:
+        stop_non_finite(diverged, settings, tuned, checkpoint_path)
 
 
 def evaluate(agent: Agent, args: Args, device: torch.device) -> list[float]:
@@ -838,16 +845,14 @@ def save_checkpoint(path: str, checkpoint: dict) -> None:
     atomic_write_bytes(path, buffer.getvalue())
 
 
-def stop_non_finite(what: str, iteration: int, global_step: int, settings: Settings, tuned: list[str],
-                    checkpoint_path: str, progress: tqdm, writer: SummaryWriter) -> None:
-    """Exit status 1 with the iteration and the settings in force; the last checkpoint stays as it was."""
-    progress.close()
-    writer.close()
+def stop_non_finite(diverged: dict, settings: Settings, tuned: list[str], checkpoint_path: str) -> None:
+    """Exit status 1 with where the run diverged and the settings in force, once summary.json has recorded the
+    divergence (the tools count the run as finished); the last checkpoint stays as it was."""
     last = (f"the last good checkpoint is {checkpoint_path}" if os.path.exists(checkpoint_path)
             else "no checkpoint was written")
-    print(f"{SCRIPT}: error: non-finite {what} at iteration {iteration} (step {global_step}) with "
-          f"{', '.join(f'{n}={format_value(getattr(settings, n))}' for n in tuned)}; stopped, {last}",
-          file=sys.stderr)
+    print(f"{SCRIPT}: error: non-finite {diverged['what']} at iteration {diverged['iteration']} (step "
+          f"{diverged['global_step']}) with {', '.join(f'{n}={format_value(getattr(settings, n))}' for n in tuned)}; "
+          f"stopped, summary.json records the divergence, {last}", file=sys.stderr)
     sys.exit(1)
 
 
@@ -908,7 +913,8 @@ def human_normalized(env_id: str, score: float | None) -> float | None:
 def write_summary(run_dir: str, args: Args, config: dict, settings: Settings, tuned: list[str],
                   bandit: Optional[ULTHO], global_step: int, num_iterations: int, wall_time: float,
                   ultho_seconds: float, rollout_seconds: float, update_seconds: float, device: torch.device,
-                  recent_returns: deque, recent_lengths: deque, eval_returns: list[float]) -> None:
+                  recent_returns: deque, recent_lengths: deque, eval_returns: list[float],
+                  diverged: Optional[dict]) -> None:
     """summary.json (docs/scripts.md lists its keys, docs/atari.md the human-normalized score), written atomically
     when the run ends."""
     final_score = float(np.mean(recent_returns)) if recent_returns else None
@@ -922,6 +928,7 @@ def write_summary(run_dir: str, args: Args, config: dict, settings: Settings, tu
         "ultho": args.ultho,
         "global_step": global_step,
         "iterations": num_iterations,
+        "diverged": diverged,
         "wall_time_s": wall_time,
         "sps": global_step / wall_time if wall_time > 0 else None,
         "ultho_seconds": ultho_seconds,
@@ -946,7 +953,7 @@ def write_summary(run_dir: str, args: Args, config: dict, settings: Settings, tu
         "bandit": None if bandit is None else bandit.summary(args.ultho_utility),
     }
     atomic_save_json(os.path.join(run_dir, "summary.json"), summary)
-    if not args.quiet:
+    if not args.quiet and diverged is None:  # else the error line says where it stopped
         print(f"[{SCRIPT}] done: {global_step} steps in {wall_time:.0f}s, final score "
               f"{'-' if final_score is None else f'{final_score:.3f}'}, summary in {run_dir}/summary.json", flush=True)
 

@@ -481,6 +481,7 @@ def main(args: Args) -> None:
     progress = tqdm(total=args.total_timesteps, initial=global_step, unit="step", dynamic_ncols=True,
                     disable=args.quiet or not sys.stderr.isatty())
     start_time, start_step = time.time(), global_step
+    diverged = None  # where the run stopped with non-finite numbers, if it did
     for iteration in range(start_iteration, num_iterations + 1):
         # 1. Collect a rollout with the current policy.
         rollout_start = time.perf_counter()
@@ -590,7 +591,10 @@ def main(args: Args) -> None:
         losses = (loss_sums / num_minibatches).tolist()
         update_seconds += time.perf_counter() - update_start
         if not all(map(math.isfinite, losses[:3])):  # policy, value, entropy
-            stop_non_finite("loss", iteration, global_step, settings, tuned, checkpoint_path, progress, writer)
+            # The weights are no longer finite: the run ends here, summary.json records where, and the
+            # last good checkpoint stays as it was.
+            diverged = {"what": "loss", "iteration": iteration, "global_step": global_step}
+            break
 
         if bandit is not None and args.ultho_utility == "value-after":
             tick = time.perf_counter()
@@ -636,17 +640,20 @@ def main(args: Args) -> None:
     envs.close()
 
     wall_time = elapsed_before + time.time() - start_time - eval_seconds
-    eval_returns, eval_level_seeds = (evaluate(agent, args, device, num_iterations) if args.eval_episodes > 0
-                                      else ([], []))
+    eval_returns, eval_level_seeds = (evaluate(agent, args, device, num_iterations)
+                                      if args.eval_episodes > 0 and diverged is None else ([], []))
     test_score = float(np.mean(eval_returns)) if eval_returns else None
     if eval_returns:
         writer.add_scalar("eval/return", test_score, global_step)
         writer.add_scalar("eval/test_return", test_score, global_step)
         writer.add_scalar("eval/normalized_test_return", normalized_score(args.env_id, test_score), global_step)
     writer.close()
-    write_summary(run_dir, args, config, settings, tuned, bandit, global_step, num_iterations, wall_time,
+    write_summary(run_dir, args, config, settings, tuned, bandit, global_step,
+                  num_iterations if diverged is None else diverged["iteration"], wall_time,
                   ultho_seconds, rollout_seconds, update_seconds, device, recent_returns, recent_lengths,
-                  eval_returns, eval_level_seeds, test_score)
+                  eval_returns, eval_level_seeds, test_score, diverged)
+    if diverged is not None:
+        stop_non_finite(diverged, settings, tuned, checkpoint_path)
 
 
 def evaluate(agent: Agent, args: Args, device: torch.device, iteration: int) -> tuple[list[float], list[int]]:
@@ -880,16 +887,14 @@ def save_checkpoint(path: str, checkpoint: dict) -> None:
     atomic_write_bytes(path, buffer.getvalue())
 
 
-def stop_non_finite(what: str, iteration: int, global_step: int, settings: Settings, tuned: list[str],
-                    checkpoint_path: str, progress: tqdm, writer: SummaryWriter) -> None:
-    """Exit status 1 with the iteration and the settings in force; the last checkpoint stays as it was."""
-    progress.close()
-    writer.close()
+def stop_non_finite(diverged: dict, settings: Settings, tuned: list[str], checkpoint_path: str) -> None:
+    """Exit status 1 with where the run diverged and the settings in force, once summary.json has recorded the
+    divergence (the tools count the run as finished); the last checkpoint stays as it was."""
     last = (f"the last good checkpoint is {checkpoint_path}" if os.path.exists(checkpoint_path)
             else "no checkpoint was written")
-    print(f"{SCRIPT}: error: non-finite {what} at iteration {iteration} (step {global_step}) with "
-          f"{', '.join(f'{n}={format_value(getattr(settings, n))}' for n in tuned)}; stopped, {last}",
-          file=sys.stderr)
+    print(f"{SCRIPT}: error: non-finite {diverged['what']} at iteration {diverged['iteration']} (step "
+          f"{diverged['global_step']}) with {', '.join(f'{n}={format_value(getattr(settings, n))}' for n in tuned)}; "
+          f"stopped, summary.json records the divergence, {last}", file=sys.stderr)
     sys.exit(1)
 
 
@@ -950,7 +955,7 @@ def write_summary(run_dir: str, args: Args, config: dict, settings: Settings, tu
                   bandit: Optional[ULTHO], global_step: int, num_iterations: int, wall_time: float,
                   ultho_seconds: float, rollout_seconds: float, update_seconds: float, device: torch.device,
                   recent_returns: deque, recent_lengths: deque, eval_returns: list[float],
-                  eval_level_seeds: list[int], test_score: Optional[float]) -> None:
+                  eval_level_seeds: list[int], test_score: Optional[float], diverged: Optional[dict]) -> None:
     """summary.json (docs/scripts.md lists its keys, docs/procgen.md the train and test scores), written
     atomically when the run ends. The final score is the training score."""
     final_score = float(np.mean(recent_returns)) if recent_returns else None
@@ -964,6 +969,7 @@ def write_summary(run_dir: str, args: Args, config: dict, settings: Settings, tu
         "ultho": args.ultho,
         "global_step": global_step,
         "iterations": num_iterations,
+        "diverged": diverged,
         "wall_time_s": wall_time,
         "sps": global_step / wall_time if wall_time > 0 else None,
         "ultho_seconds": ultho_seconds,
@@ -992,7 +998,7 @@ def write_summary(run_dir: str, args: Args, config: dict, settings: Settings, tu
         "bandit": None if bandit is None else bandit.summary(args.ultho_utility),
     }
     atomic_save_json(os.path.join(run_dir, "summary.json"), summary)
-    if not args.quiet:
+    if not args.quiet and diverged is None:  # else the error line says where it stopped
         print(f"[{SCRIPT}] done: {global_step} steps in {wall_time:.0f}s, train score "
               f"{'-' if final_score is None else f'{final_score:.3f}'}, test score "
               f"{'-' if test_score is None else f'{test_score:.3f}'}, summary in {run_dir}/summary.json", flush=True)

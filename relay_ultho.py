@@ -55,6 +55,9 @@ def checked_full_summary(summary: dict, where: str) -> tuple[str, str]:
         raise UsageError(f"{where} searched one cluster ({', '.join(bandit['search_space'])}): Relay-ULTHO "
                          "needs a full run over at least two clusters, since its COI and NOI would coincide")
     if sum(bandit["selections"].values()) == 0:
+        if summary.get("diverged"):
+            raise UsageError(f"{where} diverged at iteration {summary['diverged']['iteration']}, before crediting "
+                             "any selection: it says nothing about its clusters")
         raise UsageError(f"{where} credited no selection (selections {bandit['selections']}): it says nothing "
                          "about its clusters; give it more than one iteration")
     # Recomputed from the selections rather than read: clusters_of_interest always gives two different
@@ -135,19 +138,24 @@ def relay(script: str, script_args: list[str], relay_dir: str, from_run: Optiona
         record["final_scores"][role] = summaries[role]["final_score"]
         atomic_write_json(record_path, record)
 
-    # A run in which no episode ended has no final score; it loses to one that has (ties go to the COI).
-    def score(role: str) -> float:
+    # A run that diverged (its summary says where) ended with a network that is not finite, and a run in which no
+    # episode ended has no final score: each loses to a run without that fault (ties go to the COI).
+    def score(role: str) -> tuple[bool, float]:
         value = summaries[role]["final_score"]
-        return float("-inf") if value is None else value
+        return summaries[role].get("diverged") is None, float("-inf") if value is None else value
 
     winner = "coi" if score("coi") >= score("noi") else "noi"
     record.update(status="done", winner=winner, winner_run=record[f"{winner}_run"],
                   final_score=summaries[winner]["final_score"],
                   total_timesteps=sum(s["global_step"] for s in summaries.values()))
     atomic_write_json(record_path, record)
-    log(f"[relay] done: COI {coi} scored {summaries['coi']['final_score']}, NOI {noi} scored "
-        f"{summaries['noi']['final_score']}; winner {winner.upper()}, {record['total_timesteps']} steps in all; "
-        f"{record_path}")
+    def scored(role: str) -> str:
+        diverged = summaries[role].get("diverged")
+        return f"{summaries[role]['final_score']}" + (f" (diverged at step {diverged['global_step']})" if diverged
+                                                      else "")
+
+    log(f"[relay] done: COI {coi} scored {scored('coi')}, NOI {noi} scored {scored('noi')}; winner "
+        f"{winner.upper()}, {record['total_timesteps']} steps in all; {record_path}")
     return record
 
 

@@ -612,6 +612,7 @@ def main(args: Args) -> None:
     progress = tqdm(total=args.total_timesteps, initial=global_step, unit="step", dynamic_ncols=True,
                     disable=args.quiet or not sys.stderr.isatty())
     start_time, start_step = time.time(), global_step
+    diverged = None  # where the run stopped with non-finite numbers, if it did
     for iteration in range(start_iteration, num_iterations + 1):
         # 1. ULTHO chooses a cluster and a value for this interval's updates (if it has any).
         selected, credit = None, None
@@ -641,8 +642,8 @@ def main(args: Args) -> None:
                 with torch.no_grad():
                     actions = sac.actor.sample(torch.from_numpy(next_obs).to(device))[0].cpu().numpy()
                 if not np.isfinite(actions).all():  # diverged networks: stop before the physics is given NaN
-                    stop_non_finite("action", iteration, global_step, settings, tuned, checkpoint_path, progress,
-                                    writer)
+                    diverged = {"what": "action", "iteration": iteration, "global_step": global_step}
+                    break
             obs = next_obs
             next_obs, final_obs, rewards, terminated, truncated = envs.step(actions)
             rows = np.concatenate([obs, actions, rewards[:, None], terminated[:, None], final_obs], axis=1)
@@ -664,13 +665,18 @@ def main(args: Args) -> None:
                 num_updates += 1
                 batch = storage[torch.randint(filled, (settings.batch_size,), device=device)]
                 interval.add(batch.shape[0], *sac_update(sac, batch, num_updates, settings, obs_size, action_size))
-        recent_returns.extend(iteration_returns)
+        recent_returns.extend(iteration_returns)  # the episodes that ended before a divergence count too
         recent_lengths.extend(iteration_lengths)
+        if diverged is not None:
+            break
 
         # 3. The interval's statistics, and ULTHO's credit: the mean over its batches of each batch's mean min-Q.
         stats = interval.means()
         if not all(map(math.isfinite, stats.values())):
-            stop_non_finite("loss", iteration, global_step, settings, tuned, checkpoint_path, progress, writer)
+            # The weights are no longer finite: the run ends here, summary.json records where, and the
+            # last good checkpoint stays as it was.
+            diverged = {"what": "loss", "iteration": iteration, "global_step": global_step}
+            break
         if selected is not None:
             tick = time.perf_counter()
             credit = stats["min_qf_values"]
@@ -728,12 +734,15 @@ def main(args: Args) -> None:
     progress.close()
 
     wall_time = elapsed_before + time.time() - start_time
-    eval_returns = evaluate(sac.actor, args, device) if args.eval_episodes > 0 else []
+    eval_returns = evaluate(sac.actor, args, device) if args.eval_episodes > 0 and diverged is None else []
     if eval_returns:
         writer.add_scalar("eval/return", float(np.mean(eval_returns)), global_step)
     writer.close()
-    write_summary(run_dir, args, config, settings, tuned, bandit, global_step, num_iterations, wall_time,
-                  ultho_seconds, device, recent_returns, recent_lengths, eval_returns)
+    write_summary(run_dir, args, config, settings, tuned, bandit, global_step,
+                  num_iterations if diverged is None else diverged["iteration"], wall_time,
+                  ultho_seconds, device, recent_returns, recent_lengths, eval_returns, diverged)
+    if diverged is not None:
+        stop_non_finite(diverged, settings, tuned, checkpoint_path)
 
 
 def evaluate(actor: Actor, args: Args, device: torch.device) -> list[float]:
@@ -938,16 +947,14 @@ def restore_rng(state: dict, device: torch.device, action_rng: np.random.Generat
     action_rng.bit_generator.state = state["actions"]
 
 
-def stop_non_finite(what: str, iteration: int, global_step: int, settings: Settings, tuned: list[str],
-                    checkpoint_path: str, progress: tqdm, writer: SummaryWriter) -> None:
-    """Exit status 1 with the iteration and the settings in force; the last checkpoint stays as it was."""
-    progress.close()
-    writer.close()
+def stop_non_finite(diverged: dict, settings: Settings, tuned: list[str], checkpoint_path: str) -> None:
+    """Exit status 1 with where the run diverged and the settings in force, once summary.json has recorded the
+    divergence (the tools count the run as finished); the last checkpoint stays as it was."""
     last = (f"the last good checkpoint is {checkpoint_path}" if os.path.exists(checkpoint_path)
             else "no checkpoint was written")
-    print(f"{SCRIPT}: error: non-finite {what} at iteration {iteration} (step {global_step}) with "
-          f"{', '.join(f'{n}={format_value(getattr(settings, n))}' for n in tuned)}; stopped, {last}",
-          file=sys.stderr)
+    print(f"{SCRIPT}: error: non-finite {diverged['what']} at iteration {diverged['iteration']} (step "
+          f"{diverged['global_step']}) with {', '.join(f'{n}={format_value(getattr(settings, n))}' for n in tuned)}; "
+          f"stopped, summary.json records the divergence, {last}", file=sys.stderr)
     sys.exit(1)
 
 
@@ -1003,7 +1010,7 @@ def report_progress(progress: tqdm, args: Args, iteration: int, num_iterations: 
 def write_summary(run_dir: str, args: Args, config: dict, settings: Settings, tuned: list[str],
                   bandit: Optional[ULTHO], global_step: int, num_iterations: int, wall_time: float,
                   ultho_seconds: float, device: torch.device, recent_returns: deque, recent_lengths: deque,
-                  eval_returns: list[float]) -> None:
+                  eval_returns: list[float], diverged: Optional[dict]) -> None:
     """summary.json, with the PPO scripts' keys (docs/scripts.md)."""
     summary = {
         "script": SCRIPT,
@@ -1015,6 +1022,7 @@ def write_summary(run_dir: str, args: Args, config: dict, settings: Settings, tu
         "ultho": args.ultho,
         "global_step": global_step,
         "iterations": num_iterations,
+        "diverged": diverged,
         "wall_time_s": wall_time,
         "sps": global_step / wall_time if wall_time > 0 else None,
         "ultho_seconds": ultho_seconds,
@@ -1033,7 +1041,7 @@ def write_summary(run_dir: str, args: Args, config: dict, settings: Settings, tu
         "bandit": None if bandit is None else bandit.summary("min_q"),
     }
     atomic_save_json(os.path.join(run_dir, "summary.json"), summary)
-    if not args.quiet:
+    if not args.quiet and diverged is None:  # else the error line says where it stopped
         score = summary["final_score"]
         print(f"[{SCRIPT}] done: {global_step} steps in {wall_time:.0f}s, final score "
               f"{'-' if score is None else f'{score:.3f}'}, summary in {run_dir}/summary.json", flush=True)

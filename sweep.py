@@ -339,7 +339,11 @@ def sweep(runs: list[Run], grid: dict, out: str, executor, max_retries: int, log
     while executor.pending:
         run, (status, attempts, error) = executor.next_finished()
         run.status, run.attempts, run.error = status, run.attempts + attempts, error
-        log(f"[sweep] {status}: {run.name}" + (f": {error}" if error else ""))
+        # A run that diverged is done (its summary records where; resuming would diverge again): say so.
+        diverged = ((read_json(os.path.join(run.path, "summary.json")) or {}).get("diverged")
+                    if status == "done" and run.method not in ("relay", *HPO_METHODS) else None)
+        log(f"[sweep] {status}: {run.name}" + (f": {error}" if error else "")
+            + (f" (diverged at step {diverged['global_step']})" if diverged else ""))
         for dependent in run.dependents:
             if dependent.status == "pending":
                 if status == "done":

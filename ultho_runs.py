@@ -112,8 +112,9 @@ def script_command(script_path: str, args: list[str], run_dir: str, resume: bool
 
 # ---------------------------------------------------------------------- run directories
 def run_state(run_dir: str) -> RunState:
-    """done: summary.json exists; resumable: checkpoint.pt but no summary; fresh: neither (never started,
-    or killed before its first checkpoint, so nothing in it is worth keeping)."""
+    """done: summary.json exists (a run that diverged included: its summary says so); resumable: checkpoint.pt
+    but no summary; fresh: neither (never started, or killed before its first checkpoint, so nothing in it is
+    worth keeping)."""
     if os.path.isfile(os.path.join(run_dir, "summary.json")):
         return "done"
     if os.path.isfile(os.path.join(run_dir, "checkpoint.pt")):
@@ -133,7 +134,9 @@ def complete_run(script_path: str, args: list[str], run_dir: str, max_retries: i
                  output: Optional[TextIO] = None, log: Callable[[str], None] = lambda line: None) -> tuple[dict, int]:
     """Brings ``run_dir`` to done and returns (its summary, processes started). A run already done starts
     nothing; an interrupted or failed one continues from its checkpoint (``--resume``), at most
-    ``max_retries`` times after the first attempt. A script's bad-input exit (2) is not retried."""
+    ``max_retries`` times after the first attempt. A script's bad-input exit (2) is not retried, nor a run
+    that diverged: its script exits 1 after writing a summary that records the divergence (``diverged``), so
+    it is done, and resuming it would only replay the same divergence."""
     attempts, status = 0, None
     while True:
         state = run_state(run_dir)

@@ -78,6 +78,40 @@ def evaluation_seeds(script, monkeypatch, *evaluate_args) -> list[int]:
     return seeds
 
 
+def assert_diverged_and_recorded(result: subprocess.CompletedProcess, run_dir, iteration: int, setting: str,
+                                 checkpoint_key: str) -> dict:
+    """A run stopped at ``iteration`` by non-finite numbers with ``setting`` in force: exit status 1 and one line
+    on stderr saying where, a summary.json that records the divergence as a finished run (no evaluation: the
+    weights are not finite), and the last good checkpoint, of the iteration before, left as it was with finite
+    weights (``checkpoint_key``: where they are in it, "a/b" for checkpoint["a"]["b"]). The summary."""
+    assert result.returncode == 1, result.stderr
+    [line] = result.stderr.strip().splitlines()
+    assert "non-finite " in line and f" at iteration {iteration} " in line and setting in line, line
+    assert "summary.json records the divergence" in line and "the last good checkpoint is" in line, line
+    recorded = summary(run_dir)
+    diverged = recorded["diverged"]
+    assert diverged == {"what": diverged["what"], "iteration": iteration, "global_step": recorded["global_step"]}
+    assert diverged["what"] in ("loss", "action") and recorded["iterations"] == iteration
+    assert recorded["eval"] | {"level_seeds": []} == {"episodes": 0, "mean_return": None, "std_return": None,
+                                                      "returns": [], "level_seeds": []}  # Procgen's has its levels
+    assert recorded["bandit"] is not None and recorded["settings_in_force"]
+    assert not os.path.exists(os.path.join(run_dir, "summary.json.tmp"))
+    checkpoint = torch.load(os.path.join(run_dir, "checkpoint.pt"), weights_only=False)
+    assert checkpoint["iteration"] == iteration - 1 and checkpoint["global_step"] < recorded["global_step"]
+    weights = checkpoint
+    for key in checkpoint_key.split("/"):
+        weights = weights[key]
+    assert all(torch.isfinite(p).all() for p in weights.values())
+    # The final score is the training score it had reached: the checkpoint's last episodes and the diverging
+    # iteration's, at most 100.
+    assert recorded["final_score_episodes"] >= min(len(checkpoint["recent_returns"]), 100)
+    assert (recorded["final_score"] is None) == (recorded["final_score_episodes"] == 0)
+    if recorded["final_score_episodes"] == len(checkpoint["recent_returns"]):
+        assert recorded["final_score"] == (float(np.mean(checkpoint["recent_returns"]))
+                                           if checkpoint["recent_returns"] else None)
+    return recorded
+
+
 def summary(run_dir: str) -> dict:
     with open(os.path.join(run_dir, "summary.json")) as f:
         return json.load(f)

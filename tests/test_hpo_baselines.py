@@ -225,6 +225,37 @@ def test_killed_pbt_study_started_again_goes_on_in_step(tmp_path):
     assert_trials_followed_their_records(study_dir, record)
 
 
+def test_a_diverged_trial_keeps_its_last_score_and_the_population_in_step(tmp_path):
+    # The study's seed gives trial_1 the learning rate 1e38, so its loss is non-finite in its first iteration
+    # (128-step rollouts: episodes have ended by then, and score it); trial_0 trains normally. One CPU, so the
+    # trials take turns and the healthy one waits at each synchronization point for the diverged one: had the
+    # diverged trial ended early, the synchronous PBT would have waited for it for good.
+    study_dir = tmp_path / "s"
+    result = run(TOOL, SCRIPT, "--method", "pbt", "--population", "2", "--seed", "1", "--interval", "1024",
+                 "--study-dir", str(study_dir), "--num-cpus", "1", "--", "--env-id", "MiniGrid-Empty-5x5-v0",
+                 "--num-envs", "4", "--num-steps", "128", "--minibatch-size", "128", "--ultho-clusters",
+                 "learning_rate=0.001,1e38", "minibatch_size=64,128", "--eval-episodes", "2",
+                 "--total-timesteps", "3072", timeout=900)
+    assert result.returncode == 0, result.stdout + result.stderr
+    record = read(study_dir / "study.json")
+    healthy, diverged = record["trials"]
+    assert (record["status"], record["errors"], record["exploits"]) == ("done", [], [])
+    assert healthy["settings"]["learning_rate"] == 0.001 and diverged["settings"]["learning_rate"] == 1e38
+    run_summary = summary(str(study_dir / diverged["run_dir"]))
+    assert run_summary["diverged"] == diverged["diverged"] == {"what": "loss", "iteration": 1, "global_step": 512}
+    # Its one segment ran to the divergence; it then reported at every interval without training.
+    [segment] = diverged["segments"]
+    assert (segment["start_step"], segment["end_step"], segment["diverged"]) == (0, 1024, diverged["diverged"])
+    assert diverged["complete"] and diverged["steps_run"] == 512
+    assert diverged["final_score"] == segment["score"] == run_summary["final_score"] is not None
+    assert result.stdout.count("diverged, trains no more") == 3
+    assert healthy["diverged"] is None and healthy["complete"] and healthy["steps_run"] == 3072
+    assert [s["diverged"] for s in healthy["segments"]] == [None] * 3
+    assert record["budget"]["total_steps"] == 3072 + 512
+    # Never the best, whatever it scored before it diverged.
+    assert record["best_trial"] == "trial_0" and record["best_final_score"] == healthy["final_score"]
+
+
 BAD_INPUTS = [
     (["--method", "hyperband"], "--method hyperband: not one of pbt, pb2, random"),
     (["--method", "pbt", "--population", "1"], "--population must be >= 2 for pbt"),

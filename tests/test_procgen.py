@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from helpers import (
-    assert_authors_credit_timing_and_exact_resume,
+    assert_authors_credit_timing_and_exact_resume, assert_diverged_and_recorded,
     assert_bf16_resume_equals_uninterrupted, assert_existing_run_and_foreign_checkpoint_refused, assert_refused,
     bf16_against_float32, kill_after_first_checkpoint, real_rollout, run, run_bad_inputs, run_ok, scalars,
     summary,
@@ -154,18 +154,13 @@ def test_bf16_gradient_agrees_with_float32_on_a_real_rollout(seed):
     assert 0 < agreement["ratio_deviation"] < 1e-3, agreement
 
 
-def test_non_finite_loss_stops_and_keeps_last_good_checkpoint(tmp_path):
+def test_non_finite_loss_stops_the_run_and_its_summary_records_it(tmp_path):
     # Iteration 1 takes lr=1e-3 (every bound is 0); with c=100 iteration 2 explores the untried 1e38.
     result = run(SCRIPT, "--num-envs", "4", "--num-steps", "32", "--minibatch-size", "64", "--total-timesteps", "384",
                  "--ultho-clusters", "learning_rate=0.001,1e38", "--ultho-c", "100", "--checkpoint-every", "1",
                  "--runs-dir", str(tmp_path), "--run-name", "nan")
-    assert result.returncode == 1, result.stderr
-    assert "non-finite loss at iteration 2" in result.stderr and "learning_rate=1e+38" in result.stderr
-    assert "the last good checkpoint is" in result.stderr
-    checkpoint = torch.load(tmp_path / "nan" / "checkpoint.pt", weights_only=False)
-    assert checkpoint["iteration"] == 1
-    assert all(torch.isfinite(p).all() for p in checkpoint["agent"].values())
-    assert not (tmp_path / "nan" / "summary.json").exists()
+    recorded = assert_diverged_and_recorded(result, tmp_path / "nan", 2, "learning_rate=1e+38", "agent")
+    assert recorded["diverged"]["what"] == "loss" and recorded["settings_in_force"]["learning_rate"] == 1e38
 
 
 def test_neighbouring_runs_test_on_different_levels():

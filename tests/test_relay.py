@@ -146,6 +146,31 @@ def test_clusters_selected_equally_often_still_relay(tmp_path):
     assert summary(str(relay_dir / "noi"))["bandit"]["search_space"] == {"minibatch_size": [32, 64, 128]}
 
 
+def test_a_run_that_diverged_is_done_and_loses_to_one_that_did_not(tmp_path):
+    # The learning rate 1e38 makes the loss non-finite in the iteration after it is chosen: the full run chooses
+    # it at iteration 3 (learning_rate, then the untried minibatch_size, credited one each: COI learning_rate,
+    # NOI minibatch_size), the COI run at iteration 2. Both are done after one attempt, with their summaries
+    # saying where; the COI run scored more before it diverged, yet the NOI run, which finished, wins.
+    relay_dir = tmp_path / "r"
+    args = ["--env-id", "MiniGrid-Empty-5x5-v0", "--num-envs", "4", "--num-steps", "64", "--total-timesteps", "2048",
+            "--minibatch-size", "64", "--ultho-clusters", "learning_rate=0.001,1e38", "minibatch_size=32,64,128",
+            "--checkpoint-every", "1", "--eval-episodes", "0", "--seed", "3"]
+    result = run(TOOL, SCRIPT, "--relay-dir", str(relay_dir), "--", *args)
+    assert result.returncode == 0, result.stdout + result.stderr
+    record = summary_of(relay_dir / "relay.json")
+    full, coi, noi = (summary(str(relay_dir / role)) for role in ("full", "coi", "noi"))
+    assert full["diverged"] == {"what": "loss", "iteration": 3, "global_step": 768}
+    assert coi["diverged"] == {"what": "loss", "iteration": 2, "global_step": 512} and noi["diverged"] is None
+    assert (record["status"], record["coi"], record["noi"]) == ("done", "learning_rate", "minibatch_size")
+    assert record["final_scores"] == {"full": full["final_score"], "coi": coi["final_score"],
+                                      "noi": noi["final_score"]}
+    assert coi["final_score"] > noi["final_score"]
+    assert (record["winner"], record["final_score"]) == ("noi", noi["final_score"])
+    assert record["total_timesteps"] == 768 + 512 + 2048
+    assert result.stdout.count("starting ") == 3 and "resuming " not in result.stdout
+    assert f"scored {coi['final_score']} (diverged at step 512)" in result.stdout
+
+
 BAD_INPUTS = [
     ([SCRIPT, "--", "--no-ultho"], "--no-ultho is set by the tool itself"),
     ([SCRIPT, "--", "--run-name", "x"], "--run-name is set by the tool itself"),

@@ -108,8 +108,11 @@ def test_the_summaries_share_their_common_keys_in_one_order_and_computed_alike()
                 f"summary.json's {key!r} differs between {first} ({value}) and {script} ({other_key}: "
                 f"{other_value}) in write_summary: keep the shared keys in one order, computed alike")
     for key in ("final_score", "rollout_seconds", "update_seconds", "peak_rss_mb", "peak_cuda_mb", "eval",
-                "settings_in_force", "bandit"):
+                "settings_in_force", "bandit", "diverged"):
         assert key in dict(shared[first]), f"{key!r} is not written by every PPO script's write_summary"
+    # What the tools read of every summary, SAC's included: a diverged run is a finished run that says so.
+    sac_keys = {key.value for key in summary_literal(SAC_SCRIPT)[1].keys}
+    assert {"final_score", "eval", "bandit", "diverged"} <= sac_keys
 
 
 @pytest.mark.parametrize("block", SAC_BLOCKS)

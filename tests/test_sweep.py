@@ -264,21 +264,59 @@ def test_killed_sweep_restarted_finishes_only_what_is_missing(tmp_path):
 
 
 def test_failing_run_is_retried_from_its_checkpoint_a_bounded_number_of_times(tmp_path):
-    # Iteration 2 takes the learning rate 1e38 (see test_minigrid.py): exit 1 after the first checkpoint,
-    # and again after each resume.
+    # The real script, made to die after its last checkpoint and before its summary (exit status 1): every
+    # resume reaches the same point and fails again.
+    crashing = tmp_path / SCRIPT
+    crashing.write_text(
+        "import sys\n"
+        f"sys.path.insert(0, {REPO!r})\n"
+        "import ppo_ultho_minigrid as script\n\n\n"
+        "def crash(*args, **kwargs):\n"
+        "    print('crashed before its summary', file=sys.stderr)\n"
+        "    sys.exit(1)\n\n\n"
+        "script.write_summary = crash\n"
+        "script.main(script.parse_args())\n")
     out = tmp_path / "s"
-    result = run(TOOL, "--scripts", SCRIPT, "--env-ids", "MiniGrid-Empty-5x5-v0", "--methods", "ultho",
-                 "--total-timesteps", "2048", "--max-retries", "1", "--out", str(out), "--", "--num-envs", "4",
-                 "--num-steps", "64", "--minibatch-size", "64", "--ultho-clusters", "learning_rate=0.001,1e38",
-                 "--checkpoint-every", "1")
+    result = run(TOOL, "--scripts", str(crashing), "--env-ids", "MiniGrid-Empty-5x5-v0", "--methods", "ultho",
+                 "--total-timesteps", "512", "--max-retries", "1", "--out", str(out), "--", "--num-envs", "4",
+                 "--num-steps", "64", "--minibatch-size", "64", "--ultho-clusters", "learning_rate",
+                 "--eval-episodes", "0")
     assert result.returncode == 1
     [record] = index(out)["runs"]
     assert record["status"] == "failed" and record["attempts"] == 2
     assert "failed 2 time(s), last exit status 1" in record["error"]
     with open(out / "logs" / f"{record['name']}.log") as f:
         log = f.read()
-    assert log.count("non-finite loss at iteration 2") == 2
+    assert log.count("crashed before its summary") == 2
+    assert len(events(out / record["path"])) == 2  # the second attempt resumed from the checkpoint
     assert "1 failed: run the same command again" in result.stdout.splitlines()[-1]
+
+
+def test_diverged_run_is_done_with_its_divergence_recorded_and_never_retried(tmp_path):
+    # Iteration 2 takes the learning rate 1e38 (see test_minigrid.py): the loss is non-finite, the script exits
+    # 1 with a summary that records where. Resuming would replay the same divergence, so the run is done.
+    out = tmp_path / "s"
+    args = [TOOL, "--scripts", SCRIPT, "--env-ids", "MiniGrid-Empty-5x5-v0", "--methods", "ppo", "ultho",
+            "--total-timesteps", "2048", "--max-retries", "1", "--out", str(out), "--", "--num-envs", "4",
+            "--num-steps", "64", "--minibatch-size", "64", "--ultho-clusters", "learning_rate=0.001,1e38",
+            "--checkpoint-every", "1", "--eval-episodes", "2"]
+    result = run(*args)
+    assert result.returncode == 0, result.stdout + result.stderr
+    runs = {r["method"]: r for r in index(out)["runs"]}
+    assert [(r["status"], r["attempts"], r["error"]) for r in runs.values()] == [("done", 1, None)] * 2
+    assert f"[sweep] done: {runs['ultho']['name']} (diverged at step 512)" in result.stdout
+    diverged = summary(str(out / runs["ultho"]["path"]))
+    assert diverged["diverged"] == {"what": "loss", "iteration": 2, "global_step": 512}
+    assert diverged["final_score"] is not None and diverged["eval"]["episodes"] == 0
+    ppo = summary(str(out / runs["ppo"]["path"]))  # plain PPO at its own lr, 1e-3, runs its budget
+    assert ppo["diverged"] is None and ppo["global_step"] == 2048 and ppo["eval"]["episodes"] == 2
+    with open(out / "logs" / f"{runs['ultho']['name']}.log") as f:
+        log = f.read()
+    assert log.count("non-finite loss at iteration 2") == 1 and len(events(out / runs["ultho"]["path"])) == 1
+    before = os.path.getmtime(out / runs["ultho"]["path"] / "summary.json")
+    assert run(*args).returncode == 0  # started again: nothing to do
+    assert os.path.getmtime(out / runs["ultho"]["path"] / "summary.json") == before
+    assert [r["attempts"] for r in index(out)["runs"]] == [1, 1]
 
 
 def free_port() -> int:
