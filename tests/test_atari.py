@@ -202,6 +202,54 @@ def test_non_finite_loss_stops_the_run_and_its_summary_records_it(tmp_path):
     assert recorded["diverged"]["what"] == "loss" and recorded["settings_in_force"]["learning_rate"] == 1e38
 
 
+def noops_after_a_lost_life(game: str, fire_first: bool, steps: int = 300) -> tuple[int, int]:
+    """The script's own environment (one game, seeded as training seeds it) played at random until it loses a
+    life, then given only NOOPs (after one FIRE with ``fire_first``): (lives lost during the NOOPs, distinct
+    newest frames among them)."""
+    import ppo_ultho_atari as script
+
+    envs = script.make_envs(script.parse_args(["--env-id", game, "--num-envs", "1"]), 1)
+    rng = np.random.default_rng(1)
+    _, info = envs.reset(seed=script.game_seeds(1, np.arange(1), np.zeros(1, dtype=int)))
+    lives = info["lives"][0]
+    while info["lives"][0] == lives:
+        _, _, terminated, truncated, info = envs.step(rng.integers(envs.single_action_space.n, size=1))
+        assert not (terminated | truncated).any(), f"{game}: the game ended before it lost a life"
+    lives = info["lives"][0]
+    if fire_first:
+        envs.step(np.array([1]))
+    lost, frames = 0, set()
+    for _ in range(steps):
+        obs, _, terminated, truncated, info = envs.step(np.array([0]))
+        if (terminated | truncated).any():
+            lost = int(lives)  # game over: every life left is lost
+            break
+        lost = int(lives - info["lives"][0])
+        frames.add(obs[0, -1].tobytes())
+    envs.close()
+    return lost, len(frames)
+
+
+def test_no_fire_after_a_lost_life_and_the_papers_games_go_on_without_it():
+    # docs/departures.md: unlike CleanRL's EpisodicLifeEnv + FireResetEnv, the script presses FIRE only when a game
+    # starts. Breakout waits for FIRE to launch the next ball: the screen stands still under NOOPs until the
+    # agent presses it, and then the ball is in play (and lost again).
+    assert noops_after_a_lost_life("Breakout", fire_first=False) == (0, 1)
+    lost, frames = noops_after_a_lost_life("Breakout", fire_first=True)
+    assert lost == 1 and frames > 1
+    # The ALE-5 games need no FIRE to go on after a lost life: the game moves under NOOPs.
+    for game in ("BattleZone", "NameThisGame", "Phoenix", "Qbert"):
+        lost, frames = noops_after_a_lost_life(game, fire_first=False)
+        assert frames > 100, (game, lost, frames)
+    # DoubleDunk has no lives to lose.
+    import ppo_ultho_atari as script
+
+    envs = script.make_envs(script.parse_args(["--env-id", "DoubleDunk", "--num-envs", "1"]), 1)
+    _, info = envs.reset(seed=script.game_seeds(1, np.arange(1), np.zeros(1, dtype=int)))
+    assert info["lives"][0] == 0
+    envs.close()
+
+
 # Every ALE-5 game, each named another way, and a game outside the ALE-5 (no human-normalized score).
 GAMES = [("BattleZone", 2360.0), ("ALE/DoubleDunk-v5", -18.6), ("NameThisGame-v5", 2292.3), ("phoenix", 761.4),
          ("QbertNoFrameskip-v4", 163.9), ("Breakout", None)]
