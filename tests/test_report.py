@@ -288,6 +288,75 @@ def test_decision_shares_come_from_the_selections(reports, study):
     assert counts.sum() == credited.sum() + 1 and ((counts - credited) >= 0).all()
 
 
+def diverge(run_dir, iteration: int, global_step: int) -> None:
+    """Rewrites a real run's summary.json as a script writes it for a run whose loss became non-finite: where it
+    stopped, its final score as it was, no evaluation."""
+    path = run_dir / "summary.json"
+    record = json.loads(path.read_text())
+    record |= {"diverged": {"what": "loss", "iteration": iteration, "global_step": global_step},
+               "global_step": global_step, "iterations": iteration,
+               "eval": {"episodes": 0, "mean_return": None, "std_return": None, "returns": []}}
+    path.write_text(json.dumps(record))
+
+
+def test_diverged_runs_count_with_what_they_reached_and_are_named(study, reports, tmp_path):
+    """A PPO run and the relay's winning run diverged: every mean, IQM and interval is what it was (no survivor
+    bias), the counts and a list say which diverged, the evaluation tables say whom they leave out."""
+    copy = tmp_path / "study"
+    shutil.copytree(study, copy)
+    ppo = copy / "runs" / f"{ENVS[0]}__ppo__1"
+    diverge(ppo, 2, 512)
+    relay = json.loads((copy / "relays" / "relay_1" / "relay.json").read_text())
+    diverge(copy / "relays" / "relay_1" / relay["winner_run"], 3, 768)
+    common = ["--seed", "7", "--reps", "5000", "--solve-threshold", str(SOLVE_THRESHOLD), "--solve-window", "2",
+              "--no-per-run"]
+    result = run(REPORT, str(copy), "--out", str(tmp_path / "out"), *common)
+    assert result.returncode == 0 and "warning" not in result.stderr, result.stderr
+
+    rows, before = table(tmp_path / "out"), table(reports["b"])
+    assert rows["PPO"].pop("budget_steps_min") == "512"  # the steps it ran; the relay's budget is its relay.json's
+    before["PPO"].pop("budget_steps_min")
+    assert rows == before
+    report = (tmp_path / "out" / "report.md").read_text()
+    final_table, eval_table = [block for block in report.split("\n\n") if block.startswith("| method | " + ENVS[0])][:2]
+    cells = {(line.split(" | ")[0].removeprefix("| "), which): line.split(" | ")[1].removesuffix(" |")
+             for which, block in (("final", final_table), ("eval", eval_table)) for line in block.splitlines()[2:]}
+    assert cells[("PPO", "final")].endswith("] (2, 1 diverged)")
+    assert cells[("PPO", "eval")].endswith("] (1; 1 diverged left out)")
+    assert cells[(METHODS[3], "final")].endswith("] (1, 1 diverged)")
+    assert cells[(METHODS[3], "eval")] == "– (0; 1 diverged left out)"
+    assert cells[(METHODS[1], "final")].endswith("] (2)")
+    assert f"\n- `{ppo}` (PPO, {ENVS[0]}, seed 1): non-finite loss at iteration 2, step 512\n" in report
+    assert (f"\n- `{copy / 'relays' / 'relay_1'}` ({METHODS[3]}, {ENVS[0]}, seed 1): non-finite loss at iteration 3, "
+            "step 768 (its winning run)\n") in report
+    assert "| PPO | 2 | 4 (1 diverged) | " in report and f"| {METHODS[3]} | 1 | 1 (1 diverged) | " in report
+    # Its curve counts to the end of the --total-timesteps it was given, where its peers' do: the sample
+    # efficiency is what it was.
+    efficiency = report.split("### Sample efficiency")[1].split("###")[0]
+    assert efficiency == (reports["b"] / "report.md").read_text().split("### Sample efficiency")[1].split("###")[0]
+    reader = Study()
+    reader.load_run(str(ppo))
+    assert (reader.runs[0].budget, reader.runs[0].curve_budget) == (512, 1024)
+    assert reader.runs[0].diverged == {"what": "loss", "iteration": 2, "global_step": 512}
+    # Runs without the key (every summary written before scripts recorded divergence) say nothing of it.
+    assert "diverged" not in (reports["b"] / "report.md").read_text()
+
+
+def test_a_diverged_record_not_in_the_format_is_a_damaged_summary(study, tmp_path):
+    run_dir = tmp_path / "run"
+    shutil.copytree(study / "runs" / f"{ENVS[0]}__ppo__1", run_dir)
+    record = json.loads((run_dir / "summary.json").read_text())
+    (run_dir / "summary.json").write_text(json.dumps(record | {"diverged": {"what": "loss"}}))
+    reader = Study()
+    reader.load_run(str(run_dir))
+    assert reader.runs == [] and len(reader.warnings) == 1
+    assert "not in the summary.json format (KeyError: 'iteration'); skipped" in reader.warnings[0]
+    (run_dir / "summary.json").write_text(json.dumps(record | {"diverged": None}))  # as a finished run writes it
+    fresh = Study()
+    fresh.load_run(str(run_dir))
+    assert fresh.runs[0].diverged is None and fresh.runs[0].curve_budget == record["global_step"]
+
+
 def test_damaged_files_are_named_once_each_and_skipped(study, tmp_path):
     copy = tmp_path / "study"
     shutil.copytree(study, copy)

@@ -72,7 +72,7 @@ class Run:
     score_note: str | None = None
     eval_score: float | None = None  # raw mean return of the final evaluation (Procgen: the test levels)
     curve: np.ndarray | None = None  # (T, 2): step, episodic return
-    curve_budget: int = 0  # the steps the curve's run trained for (a relay: its winning run's)
+    curve_budget: int = 0  # the steps the curve's run trained for, or was given if it diverged (a relay: its winner's)
     start_offset: int = 0  # steps spent before the curve's run began (a relay: its full ULTHO run's)
     series: dict[str, np.ndarray] = field(default_factory=dict)  # ultho/* tags -> (T, 2)
     search_space: dict[str, list] | None = None
@@ -84,6 +84,7 @@ class Run:
     score: float | None = None  # normalized, set by Study.normalize
     label: str = ""  # the method, set by Study.label_methods
     narrowed: bool = False  # ULTHO on a search space other than its benchmark's widest (set with the label)
+    diverged: dict | None = None  # where the scored run's loss became non-finite (summary.json's "diverged")
 
 
 def finished_on_disk(run_dir: str, method: str) -> bool:
@@ -279,8 +280,9 @@ class Study:
         full_bandit = full.get("bandit") or {}
         run = Run(directory, benchmark, env_id, "relay", full_bandit.get("c"), full_bandit.get("window"), seed,
                   budget, *raw_score(winner, benchmark), eval_score=eval_score(winner),
-                  curve=self.read_scalars(winner_dir).get(RETURN_TAG), curve_budget=int(winner["global_step"]),
-                  start_offset=int(full.get("global_step") or 0), variant=variant_of(full_bandit))
+                  curve=self.read_scalars(winner_dir).get(RETURN_TAG), curve_budget=curve_budget_of(winner),
+                  start_offset=int(full.get("global_step") or 0), variant=variant_of(full_bandit),
+                  diverged=diverged_of(winner))
         self.runs.append(run)
 
     def load_study(self, directory: str) -> None:
@@ -318,7 +320,7 @@ class Study:
         self.runs.append(Run(directory, benchmark, str(best["env_id"]), method, None, None, seed, budget,
                              *raw_score(best, benchmark), eval_score=eval_score(best),
                              curve=self.read_scalars(best_dir).get(RETURN_TAG),
-                             curve_budget=int(best["global_step"]), study=study))
+                             curve_budget=curve_budget_of(best), study=study, diverged=diverged_of(best)))
 
     def read_summary(self, run_dir: str) -> dict | None:
         """summary.json with the fields the report needs checked; None (and a warning) when unusable."""
@@ -333,6 +335,8 @@ class Study:
                 float(bandit["c"]), int(bandit["window"]), dict(bandit["search_space"])
             raw_score(summary, benchmark_of(summary["script"]))
             eval_score(summary)
+            diverged_of(summary)
+            curve_budget_of(summary)
         except (KeyError, TypeError, ValueError) as err:
             self.warn(path, f"not in the summary.json format ({err.__class__.__name__}: {err}); skipped")
             return None
@@ -354,13 +358,14 @@ class Study:
             run_dir, benchmark, summary["env_id"], "ultho" if bandit else "ppo",
             float(bandit["c"]) if bandit else None, int(bandit["window"]) if bandit else None,
             int(summary["seed"]), int(summary["global_step"]), *raw_score(summary, benchmark),
-            eval_score=eval_score(summary), curve=scalars.get(RETURN_TAG), curve_budget=int(summary["global_step"]),
+            eval_score=eval_score(summary), curve=scalars.get(RETURN_TAG), curve_budget=curve_budget_of(summary),
             series={k: v for k, v in scalars.items() if k != RETURN_TAG},
             search_space=bandit["search_space"] if bandit else None,
             variant=variant_of(bandit or {}),
             value_selections=bandit.get("value_selections") if bandit else None,
             utility=str(bandit.get("utility", "value")) if bandit else "value",
             settings=summary.get("settings") or {},
+            diverged=diverged_of(summary),
         ))
 
     # ------------------------------------------------------------------ scores and methods
@@ -489,6 +494,27 @@ def eval_score(summary: dict) -> float | None:
     evaluation = summary.get("eval") or {}
     value = evaluation.get("mean_return")
     return None if value is None else float(value)
+
+
+def diverged_of(summary: dict) -> dict | None:
+    """Where a run stopped because its loss became non-finite (summary.json's ``diverged``: what, iteration,
+    global_step), or None: the key is null in a run that did not diverge and absent in summaries written before
+    the scripts recorded it. Such a run is finished: it is scored with the final score it had reached."""
+    diverged = summary.get("diverged")
+    if diverged is None:
+        return None
+    return {"what": str(diverged["what"]), "iteration": int(diverged["iteration"]),
+            "global_step": int(diverged["global_step"])}
+
+
+def curve_budget_of(summary: dict) -> int:
+    """The steps a run's curve counts as its whole budget in the sample-efficiency tables: those it trained, or
+    for a run that diverged its ``--total-timesteps``, so that a run that stopped early without reaching the
+    threshold is not counted as if it had used fewer steps than its peers."""
+    steps = int(summary["global_step"])
+    if diverged_of(summary) is None:
+        return steps
+    return max(steps, int((summary.get("settings") or {}).get("total_timesteps") or 0))
 
 
 def baseline_of(benchmark: str) -> str:

@@ -47,12 +47,21 @@ def number(value: float) -> str:
     return f"{value:.2f}" if abs(value) < 100 else f"{value:,.0f}"
 
 
-def mean_with_interval(values: list[float], seed: int, reps: int) -> str:
-    """``mean [low, high] (n)``: a percentile bootstrap interval of the mean over seeds."""
+def mean_with_interval(values: list[float], seed: int, reps: int, count: str | None = None) -> str:
+    """``mean [low, high] (n)``: a percentile bootstrap interval of the mean over seeds; ``count`` in place of n."""
     if not values:
         return "–"
     point, low, high = aggregate_with_interval([np.array(values)], "mean", seed, reps)
-    return f"{number(point)} [{number(low)}, {number(high)}] ({len(values)})"
+    return f"{number(point)} [{number(low)}, {number(high)}] ({count or len(values)})"
+
+
+def count_with_diverged(counted: list[Run], left_out: list[Run]) -> str:
+    """A table cell's run count, saying how many of its runs diverged ("3, 1 diverged") and how many runs that
+    diverged the cell leaves out for want of a value ("2; 1 diverged left out": no evaluation)."""
+    diverged = sum(r.diverged is not None for r in counted)
+    text = f"{len(counted)}" + (f", {diverged} diverged" if diverged else "")
+    missing = sum(r.diverged is not None for r in left_out)
+    return text + (f"; {missing} diverged left out" if missing else "")
 
 
 def budget_text(runs: list[Run]) -> str:
@@ -97,9 +106,32 @@ def per_environment_table(runs: list[Run], methods: list[str], envs: list[str], 
                           reps: int) -> list[str]:
     lines = ["| method | " + " | ".join(envs) + " |", "|---|" + "---|" * len(envs)]
     for label in methods:
-        cells = [mean_with_interval([v for r in runs if r.label == label and r.env_id == env
-                                     and (v := value(r)) is not None], seed, reps) for env in envs]
+        cells = []
+        for env in envs:
+            members = [r for r in runs if r.label == label and r.env_id == env]
+            counted = [r for r in members if value(r) is not None]
+            left_out = [r for r in members if value(r) is None]
+            count = count_with_diverged(counted, left_out)
+            cells.append(mean_with_interval([value(r) for r in counted], seed, reps, count) if counted else
+                         f"– ({count})" if any(r.diverged is not None for r in left_out) else "–")
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return lines + [""]
+
+
+def diverged_list(runs: list[Run], methods: list[str]) -> list[str]:
+    """Every entry scored by a run that diverged, with where it stopped."""
+    diverged = sorted((r for r in runs if r.diverged is not None),
+                      key=lambda r: (methods.index(r.label), r.env_id, r.seed, r.path))
+    if not diverged:
+        return []
+    lines = ["Diverged: the loss of these runs became non-finite and they stopped there. Each counts as a finished "
+             "run in every table, with the final score it had reached (the mean return of its last 100 training "
+             "episodes), and has no evaluation score.", ""]
+    for r in diverged:
+        where = r.diverged
+        lines.append(f"- `{r.path}` ({r.label}, {r.env_id}, seed {r.seed}): non-finite {where['what']} at iteration "
+                     f"{where['iteration']:,}, step {where['global_step']:,}"
+                     + (" (its winning run)" if r.kind == "relay" else " (its best trial)" if r.study else ""))
     return lines + [""]
 
 
@@ -115,7 +147,7 @@ def scores_section(runs: list[Run], benchmark: str, methods: list[str], options:
     lines += ["Evaluation score: mean return of fresh episodes of the final policy on environment seeds never used "
               "in training (`summary.json`'s `eval`).", ""]
     lines += per_environment_table(runs, methods, envs, lambda r: r.eval_score, options.seed, options.reps)
-    return lines
+    return lines + diverged_list(runs, methods)
 
 
 def aggregate_section(runs: list[Run], benchmark: str, methods: list[str],
@@ -144,8 +176,9 @@ def aggregate_section(runs: list[Run], benchmark: str, methods: list[str],
             strata = strata_of(members, set(group_envs))
             mean, iqm = (aggregate_with_interval(strata, name, seed, reps) for name in AGGREGATES)
             count = sum(map(len, strata))
-            lines.append(f"| {label} | {len(strata)} | {count} | {percent(*mean)} | {percent(*iqm)} | "
-                         f"{budget_text(members)} |")
+            diverged = sum(r.diverged is not None and r.score is not None and r.env_id in group_envs for r in members)
+            lines.append(f"| {label} | {len(strata)} | {count}{f' ({diverged} diverged)' if diverged else ''} | "
+                         f"{percent(*mean)} | {percent(*iqm)} | {budget_text(members)} |")
             rows.append({"benchmark": benchmark, "method": label, "environments": " ".join(group_envs),
                          "games": len(strata), "runs": count, "mean": mean[0], "mean_low": mean[1],
                          "mean_high": mean[2], "iqm": iqm[0], "iqm_low": iqm[1], "iqm_high": iqm[2],
