@@ -2,9 +2,9 @@
 
 ``benchmark_section`` writes one benchmark's part, section by section: learning curves, scores per
 environment, aggregate scores (whose rows also go to aggregate.csv), sample efficiency, the HPO baselines, the
-decision process and confidence bounds, robustness over (c, W). Each section is a function of the benchmark's
-runs that returns its lines (none when it has nothing to show), so a new section is one more function and one
-more line in ``benchmark_section``.
+decision process and confidence bounds, robustness over (c, W), and the paper's best-(c, W) protocol on both
+sides (``protocol.py``). Each section is a function of the benchmark's runs that returns its lines (none when it
+has nothing to show), so a new section is one more function and one more line in ``benchmark_section``.
 """
 
 import os
@@ -15,6 +15,7 @@ import numpy as np
 from ultho_reporting.decisions import exploration_ratio
 from ultho_reporting.figures import (decision_figures, efficiency_figure, learning_curves, method_colors,
                                      per_run_figure, robustness_figure, schedule_figure, slug)
+from ultho_reporting.protocol import protocol_section
 from ultho_reporting.references import BENCHMARKS, NORMALIZATION
 from ultho_reporting.runs import HPO_METHODS, Run, Study, baseline_of, method_order
 from ultho_reporting.scores import (AGGREGATES, aggregate_with_interval, better_of_two, coverage_groups, efficiency_of,
@@ -84,6 +85,7 @@ def benchmark_section(study: Study, benchmark: str, options: Options) -> tuple[l
     lines += hpo_section(runs, benchmark, methods, options)
     lines += decisions_section(runs, benchmark, methods, study.runs, options)
     lines += robustness_section(runs, benchmark, study.grid, options)
+    lines += protocol_section(runs, benchmark, options.seed, options.reps)
     return lines, rows
 
 
