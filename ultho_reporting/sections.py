@@ -2,9 +2,10 @@
 
 ``benchmark_section`` writes one benchmark's part, section by section: learning curves, scores per
 environment, aggregate scores (whose rows also go to aggregate.csv), sample efficiency, the HPO baselines, the
-decision process and confidence bounds, robustness over (c, W), and the paper's best-(c, W) protocol on both
-sides (``protocol.py``). Each section is a function of the benchmark's runs that returns its lines (none when it
-has nothing to show), so a new section is one more function and one more line in ``benchmark_section``.
+decision process and confidence bounds, robustness over (c, W), the paper's best-(c, W) protocol on both
+sides (``protocol.py``) and the landscape of fixed settings (``landscape.py``). Each section is a function of
+the benchmark's runs that returns its lines (none when it has nothing to show), so a new section is one more
+function and one more line in ``benchmark_section``.
 """
 
 import os
@@ -15,6 +16,7 @@ import numpy as np
 from ultho_reporting.decisions import exploration_ratio
 from ultho_reporting.figures import (decision_figures, efficiency_figure, learning_curves, method_colors,
                                      per_run_figure, robustness_figure, schedule_figure, slug)
+from ultho_reporting.landscape import landscape_section
 from ultho_reporting.protocol import protocol_section
 from ultho_reporting.references import BENCHMARKS, NORMALIZATION
 from ultho_reporting.runs import HPO_METHODS, Run, Study, baseline_of, method_order
@@ -86,6 +88,7 @@ def benchmark_section(study: Study, benchmark: str, options: Options) -> tuple[l
     lines += decisions_section(runs, benchmark, methods, study.runs, options)
     lines += robustness_section(runs, benchmark, study.grid, options)
     lines += protocol_section(runs, benchmark, options.seed, options.reps)
+    lines += landscape_section(runs, benchmark, options.out, number)
     return lines, rows
 
 

@@ -1,0 +1,74 @@
+"""The landscape of fixed settings in the report: its numbers on made-up scores worked out by hand, and the
+section and figure on a real tiny grid."""
+
+import os
+
+import numpy as np
+import pytest
+
+from helpers import run
+from ultho_reporting.landscape import best_chosen_on_other_seeds, landscape_section, landscapes, percentile
+from ultho_reporting.runs import Run, Study
+
+SCORES = {1e-3: (0.5, 0.7), 2.5e-3: (0.8, 0.6), 5e-3: (0.1, 0.3)}  # learning rate: final scores of seeds 1 and 2
+
+
+def made_study(tmp_path):
+    runs = [Run(f"ppo{lr}{seed}", "minigrid", "E", "ppo", None, None, seed, 500_000, score,
+                settings={"learning_rate": lr, "seed": seed, "minibatch_size": 256})
+            for lr, scores in SCORES.items() for seed, score in zip((1, 2), scores)]
+    held = np.array([[1, 2.5e-3], [2, 2.5e-3], [3, 1e-3]])  # hparams/learning_rate: (step, value)
+    runs += [Run(f"ultho{seed}", "minigrid", "E", "ultho", 5.0, 10, seed, 500_000, score,
+                 search_space={"learning_rate": list(SCORES)}, series={"hparams/learning_rate": held})
+             for seed, score in ((1, 0.65), (2, 0.75))]
+    study = Study()
+    study.runs = runs
+    study.normalize()
+    study.label_methods()
+    return study
+
+
+def test_the_settings_ranked_and_each_method_placed_among_them_by_hand(tmp_path):
+    study = made_study(tmp_path)
+    grid = landscapes(study.runs)["E"]
+    # Means 0.6 (1e-3, the script's default), 0.7 (2.5e-3), 0.2 (5e-3): best first.
+    assert [s.values["learning_rate"] for s in grid] == [2.5e-3, 1e-3, 5e-3]
+    assert [s.final for s in grid] == pytest.approx([0.7, 0.6, 0.2])
+    # ULTHO's mean 0.7: above 0.6 and 0.2, level with 0.7 (half): 2.5 of 3.
+    assert percentile(0.7, grid) == pytest.approx(100 * 2.5 / 3)
+    # Seed 1 held out: seed 2 picks 1e-3 (0.7 > 0.6), which scores 0.5 on seed 1; seed 2 held out: seed 1 picks
+    # 2.5e-3 (0.8), which scores 0.6 on seed 2. A grid search could expect (0.5 + 0.6) / 2.
+    assert best_chosen_on_other_seeds(grid) == pytest.approx(0.55)
+    lines = landscape_section(study.runs, "minigrid", str(tmp_path), lambda v: f"{v:.3f}")
+    text = "\n".join(lines)
+    assert "3 settings; best 0.700 (0.0025), median 0.600, worst 0.200 (0.005)" in text
+    assert "the defaults (0.001) rank 2 of 3 at 0.600" in text
+    assert "the best setting chosen on the other seeds scores 0.550" in text
+    row = next(line for line in lines if line.startswith("| ULTHO (c=5, W=10) |"))
+    # 0.7: percentile 83; +0.1 over the median and the defaults, level with the best; one run a seed; both runs
+    # held 2.5e-3 longest, the best setting.
+    assert row == "| ULTHO (c=5, W=10) | 0.700 | 83 | +0.1 | +0.1 | +0 | 1 | 1, 1 |"
+    assert os.path.exists(tmp_path / "landscape_minigrid_E.png")
+
+
+def test_one_setting_is_no_landscape(tmp_path):
+    study = made_study(tmp_path)
+    study.runs = [r for r in study.runs if r.kind != "ppo" or r.settings["learning_rate"] == 1e-3]
+    assert landscapes(study.runs) == {}
+    assert landscape_section(study.runs, "minigrid", str(tmp_path), str) == []
+
+
+def test_a_real_tiny_grid_draws_its_landscape(tmp_path):
+    out = tmp_path / "grid"
+    swept = run("sweep.py", "--scripts", "ppo_ultho_minigrid.py", "--env-ids", "MiniGrid-Empty-5x5-v0", "--methods",
+                "grid", "ultho", "--grid-clusters", "minibatch_size=32,64", "vf_coef=0.5,1.0", "--total-timesteps",
+                "512", "--workers", "2", "--out", str(out), "--", "--num-envs", "4", "--num-steps", "64",
+                "--eval-episodes", "0", "--ultho-clusters", "minibatch_size=32,64", "vf_coef=0.5,1.0")
+    assert swept.returncode == 0, swept.stderr
+    report = run("ultho_report.py", str(out), "--out", str(tmp_path / "report"), "--reps", "200", "--no-per-run")
+    assert report.returncode == 0, report.stderr
+    text = (tmp_path / "report" / "report.md").read_text()
+    assert "### The landscape of fixed settings" in text and "4 settings; best" in text
+    assert "landscape_minigrid_MiniGrid_Empty_5x5_v0.png" in text
+    assert (tmp_path / "report" / "landscape_minigrid_MiniGrid_Empty_5x5_v0.png").exists()
+    assert "| ULTHO (c=5, W=10) |" in text

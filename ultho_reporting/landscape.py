@@ -1,0 +1,214 @@
+"""The landscape of fixed settings: where each method stands among every fixed setting a grid search would try.
+
+A benchmark's fixed-settings runs form a grid when they differ in their settings (``sweep.py --methods grid``
+runs every combination of a search space's values with ``--no-ultho``). For each environment with two or more
+settings, the section ranks them by final score and by the area under the learning curve, draws them sorted with
+the other methods' scores across, and places each other method among them: its percentile, its score against
+the grid's median (what a setting picked at random gets), the script's defaults and the best setting, and its
+cost in runs. The best setting chosen on the seeds it is scored on is optimistic, so the section also gives the
+best setting chosen on the other seeds (leave one seed out), which is what a grid search could expect.
+"""
+
+from dataclasses import dataclass
+
+import matplotlib.pyplot as plt
+import numpy as np
+
+from ultho_reporting.figures import save, slug
+from ultho_reporting.runs import NOT_SETTINGS, Run, script_defaults
+from ultho_reporting.scores import normalized_area
+
+
+@dataclass
+class Setting:
+    """One fixed setting of the grid on one environment, and its runs' scores."""
+
+    values: dict  # {setting name: value}, the names the grid varies
+    runs: list[Run]
+
+    @property
+    def finals(self) -> dict[int, float]:
+        """{seed: final score}"""
+        return {r.seed: r.raw_score for r in self.runs if r.raw_score is not None}
+
+    @property
+    def final(self) -> float:
+        return float(np.mean(list(self.finals.values())))
+
+    @property
+    def area(self) -> float | None:
+        areas = [a for a in map(normalized_area, self.runs) if a is not None]
+        return float(np.mean(areas)) if areas else None
+
+    def text(self) -> str:
+        return " / ".join(f"{value:g}" if isinstance(value, (int, float)) and not isinstance(value, bool)
+                          else str(value) for value in self.values.values())
+
+
+def grid_keys(runs: list[Run]) -> list[str]:
+    """The settings on which a benchmark's fixed-settings runs differ, in the order of their runs' settings."""
+    fixed = [r for r in runs if r.kind == "ppo"]
+    keys: list[str] = []
+    for run in fixed:
+        for key, value in run.settings.items():
+            if key not in NOT_SETTINGS and key not in keys and any(r.settings.get(key) != value for r in fixed):
+                keys.append(key)
+    return keys
+
+
+def landscapes(runs: list[Run]) -> dict[str, list[Setting]]:
+    """{environment: its fixed settings with scored runs}, for the environments with two settings or more."""
+    keys = grid_keys(runs)
+    found: dict[str, list[Setting]] = {}
+    if not keys:
+        return found
+    for env in sorted({r.env_id for r in runs if r.kind == "ppo"}):
+        settings: dict[tuple, Setting] = {}
+        for run in (r for r in runs if r.kind == "ppo" and r.env_id == env and r.raw_score is not None):
+            values = {key: run.settings.get(key) for key in keys}
+            settings.setdefault(tuple(values.values()), Setting(values, [])).runs.append(run)
+        if len(settings) >= 2:
+            found[env] = sorted(settings.values(), key=lambda s: -s.final)
+    return found
+
+
+def percentile(score: float, grid: list[Setting]) -> float:
+    """The share of the settings (in %) whose mean final score is below ``score``, ties counted half."""
+    finals = np.array([s.final for s in grid])
+    return float(100 * (np.sum(finals < score) + 0.5 * np.sum(finals == score)) / len(finals))
+
+
+def best_chosen_on_other_seeds(grid: list[Setting]) -> float | None:
+    """A grid search's expected score: for each seed that every setting has, the setting with the best mean over
+    the other seeds, scored on that seed; the mean over those seeds (None with fewer than two shared seeds)."""
+    shared = sorted(set.intersection(*(set(s.finals) for s in grid)))
+    if len(shared) < 2:
+        return None
+    picked = []
+    for held_out in shared:
+        others = [seed for seed in shared if seed != held_out]
+        choice = max(grid, key=lambda s: np.mean([s.finals[seed] for seed in others]))
+        picked.append(choice.finals[held_out])
+    return float(np.mean(picked))
+
+
+def defaults_of(grid: list[Setting], benchmark: str) -> Setting | None:
+    """The setting at the script's own defaults, when the grid has it."""
+    defaults = script_defaults(benchmark)
+    for setting in grid:
+        if all(defaults.get(key) == value for key, value in setting.values.items()):
+            return setting
+    return None
+
+
+def held_longest(run: Run, keys: list[str]) -> tuple | None:
+    """The value each of ``keys`` held for the most logged iterations of an ULTHO run (``hparams/*``)."""
+    if not all(f"hparams/{key}" in run.series for key in keys):
+        return None
+    held = []
+    for key in keys:
+        values, counts = np.unique(run.series[f"hparams/{key}"][:, 1], return_counts=True)
+        held.append(float(values[counts.argmax()]))
+    return tuple(held)
+
+
+def rank_of(values: tuple, grid: list[Setting]) -> int | None:
+    """The 1-based rank by mean final score of the setting with these values (None when the grid lacks it)."""
+    for rank, setting in enumerate(grid, start=1):
+        if np.allclose([float(v) for v in setting.values.values()], values):
+            return rank
+    return None
+
+
+def landscape_figure(env: str, grid: list[Setting], marks: dict[str, float], area_marks: dict[str, float],
+                     defaults: Setting | None, benchmark: str, out: str) -> str:
+    """Every setting's mean final score (dot) and its seeds' range (bar), sorted, the defaults in red; beside it the
+    same for the area under the curve; the other methods as vertical lines at their mean."""
+    panels = [("final score", lambda s: s.final, lambda s: list(s.finals.values()))]
+    if all(s.area is not None for s in grid):
+        panels.append(("area under the normalized curve", lambda s: s.area,
+                       lambda s: [a for a in map(normalized_area, s.runs) if a is not None]))
+    figure, axes = plt.subplots(1, len(panels), figsize=(6.2 * len(panels), 1.6 + 0.26 * len(grid)),
+                                squeeze=False, layout="constrained")
+    styles = ["-", "--", "-.", ":"]
+    for panel, (title, value, spread) in zip(axes[0], panels):
+        ordered = sorted(grid, key=value)
+        ys = np.arange(len(ordered))
+        for y, setting in zip(ys, ordered):
+            color = "tab:red" if setting is defaults else "0.25"
+            seeds = spread(setting)
+            panel.plot([min(seeds), max(seeds)], [y, y], color=color, alpha=0.45, linewidth=2.5)
+            panel.plot(value(setting), y, "o", color=color, markersize=5)
+        panel.set_yticks(ys, [s.text() + (" (defaults)" if s is defaults else "") for s in ordered], fontsize=8)
+        for k, label in enumerate(marks):
+            at = marks[label] if title == "final score" else area_marks.get(label)
+            if at is not None:
+                panel.axvline(at, color=f"C{k % 10}", linestyle=styles[k // 10 % 4], linewidth=1.6,
+                              label=label if title == "final score" else None)
+        panel.set_xlabel(title)
+        panel.grid(axis="x", alpha=0.3)
+    axes[0][0].set_ylabel(" / ".join(grid[0].values))
+    if marks:
+        figure.legend(loc="outside lower center", ncol=min(3, len(marks)), frameon=False, fontsize=8)
+    figure.suptitle(f"{env}: {len(grid)} fixed settings, best at the top (dot: mean over seeds, bar: their range)",
+                    fontsize=10)
+    return save(figure, out, f"landscape_{benchmark}_{slug(env)}.png")
+
+
+def landscape_section(runs: list[Run], benchmark: str, out: str, number) -> list[str]:
+    """The section's lines (none without a grid of fixed settings); ``number`` formats a raw score."""
+    found = landscapes(runs)
+    if not found:
+        return []
+    keys = grid_keys(runs)
+    budget = int(np.median([r.budget for grid in found.values() for s in grid for r in s.runs]))
+    lines = ["### The landscape of fixed settings", "",
+             f"Every fixed setting of {', '.join(keys)} that was run, per environment, ranked by mean final score "
+             "over its seeds; the methods of this report placed among them: their percentile among the settings "
+             "(100: above all), their mean final score minus the grid's median setting's (what a setting picked at "
+             "random gets), minus the script's defaults' and minus the best setting's, and their cost in runs of "
+             f"{budget:,} steps per seed (a grid search costs one run per setting). The best setting is chosen on "
+             "the seeds it is scored on, so it is optimistic; the last column of the settings table chooses it on "
+             "the other seeds instead (leave one seed out), what a grid search could expect.", ""]
+    for env, grid in found.items():
+        defaults = defaults_of(grid, benchmark)
+        median = float(np.median([s.final for s in grid]))
+        others = [r for r in runs if r.env_id == env and r.kind != "ppo" and r.raw_score is not None]
+        labels = list(dict.fromkeys(r.label for r in others))
+        marks = {label: float(np.mean([r.raw_score for r in others if r.label == label])) for label in labels}
+        area_marks = {}
+        for label in labels:
+            areas_of = [a for a in (normalized_area(r) for r in others if r.label == label) if a is not None]
+            if areas_of:
+                area_marks[label] = float(np.mean(areas_of))
+        name = landscape_figure(env, grid, marks, area_marks, defaults, benchmark, out)
+        chosen = best_chosen_on_other_seeds(grid)
+        areas = [s for s in grid if s.area is not None]
+        lines += [f"#### {env}", "", f"![landscape of fixed settings on {env}]({name})", "",
+                  f"{len(grid)} settings; best {number(grid[0].final)} ({grid[0].text()}), median {number(median)}, "
+                  f"worst {number(grid[-1].final)} ({grid[-1].text()})"
+                  + (f"; the defaults ({defaults.text()}) rank {grid.index(defaults) + 1} of {len(grid)} at "
+                     f"{number(defaults.final)}" if defaults else "; the defaults are not among them")
+                  + (f"; the best setting chosen on the other seeds scores {number(chosen)}" if chosen is not None
+                     else "")
+                  + (f". By area under the curve the best is {max(areas, key=lambda s: s.area).text()} "
+                     f"({max(s.area for s in areas):.2f}), the defaults "
+                     f"{'–' if defaults is None or defaults.area is None else f'{defaults.area:.2f}'}."
+                     if areas else "."), ""]
+        if not labels:
+            continue
+        lines += ["| method | final score | percentile among the settings | − median setting | − defaults | "
+                  "− best setting | runs per seed | settings its runs held longest (rank of " + str(len(grid)) + ") |",
+                  "|---|---|---|---|---|---|---|---|"]
+        for label in labels:
+            members = [r for r in others if r.label == label]
+            score = marks[label]
+            held = [held_longest(r, keys) for r in members if r.kind == "ultho"]
+            ranks = [rank_of(h, grid) for h in held if h is not None]
+            held_text = ", ".join("–" if rank is None else str(rank) for rank in ranks) if ranks else "–"
+            cost = float(np.mean([r.budget for r in members])) / budget
+            lines.append(f"| {label} | {number(score)} | {percentile(score, grid):.0f} | {score - median:+.3g} | "
+                         f"{'–' if defaults is None else f'{score - defaults.final:+.3g}'} | "
+                         f"{score - grid[0].final:+.3g} | {cost:.3g} | {held_text} |")
+        lines.append("")
+    return lines
