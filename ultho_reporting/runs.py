@@ -407,7 +407,7 @@ class Study:
             name = "ULTHO" if run.kind == "ultho" else "Relay-ULTHO"
             if strategy == "round-robin":
                 name, variant = ("Round robin" if run.kind == "ultho" else "Relay round robin"), ""
-            run.label = name + variant + setting
+            run.label = algorithm_prefix(run.benchmark, name) + name + variant + setting
             run.narrowed = bool(run.search_space) and run.search_space != widest[run.benchmark]
             if run.narrowed:
                 run.label += " on " + ", ".join(f"{k}={'/'.join(map(str, v))}" for k, v in run.search_space.items())
@@ -520,6 +520,13 @@ def curve_budget_of(summary: dict) -> int:
 def baseline_of(benchmark: str) -> str:
     """The name of a benchmark's fixed-settings runs (the script with --no-ultho)."""
     return "SAC" if benchmark == "dmc" else "PPO"
+
+
+def algorithm_prefix(benchmark: str, name: str) -> str:
+    """"SAC + " before ULTHO's methods where the algorithm it tunes is not PPO (DMC), so that a label names it:
+    "SAC + ULTHO (c=5, W=10)"; on the PPO benchmarks ULTHO is PPO's and the label stays "ULTHO (c=5, W=10)"."""
+    baseline = baseline_of(benchmark)
+    return "" if baseline == "PPO" else f"{baseline} + "
 
 
 def method_order(runs: list[Run]) -> list[str]:
