@@ -375,5 +375,6 @@ def test_report_scores_dmc_returns_divided_by_1000(smoke_run, tmp_path):
     assert float(row["mean"]) == pytest.approx(summary(smoke_run)["final_score"] / 1000)
     text = (tmp_path / "out" / "report.md").read_text()
     assert "## DMC" in text
-    # The fixed-settings baseline is called SAC throughout a DMC report, the robustness caption included.
-    assert "fixed-settings SAC on that environment" in text and "PPO" not in text
+    # The fixed-settings baseline is called SAC throughout a DMC report; ULTHO at one (c, W) draws no robustness
+    # figure, and the sentence that says so names SAC + ULTHO.
+    assert "No figure: SAC + ULTHO ran at one (c, W) point (c=100, W=10)" in text and "PPO" not in text

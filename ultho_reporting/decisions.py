@@ -67,3 +67,25 @@ def exploration_ratio(run: Run) -> float | None:
     spread = scaled_utility.max(1) - scaled_utility.min(1)
     ratio = bonus[half].mean(1) / np.where(spread > 0, spread, np.nan)
     return float(np.nanmedian(ratio)) if np.isfinite(ratio).any() else None
+
+
+def in_force(runs: list[Run]) -> tuple[np.ndarray, np.ndarray] | None:
+    """How long each value was in force, pooled over the runs: ((clusters, most values) logged iterations at each
+    value of the search space, (clusters,) logged iterations in all), from the ``hparams/<cluster>`` series; a
+    cluster the bandit stopped choosing keeps its last value, and one it never chose the script's setting (which
+    may lie outside the space). None when no run logged them."""
+    space = runs[0].search_space
+    counts = np.zeros((len(space), max(len(v) for v in space.values())))
+    totals = np.zeros(len(space))
+    logged = False
+    for run in runs:
+        for k, (cluster, values) in enumerate(space.items()):
+            series = run.series.get(f"hparams/{cluster}")
+            if series is None or not len(series):
+                continue
+            logged = True
+            totals[k] += len(series)
+            for j, value in enumerate(values):
+                # TensorBoard keeps float32: 0.0025 comes back as 0.0024999999.
+                counts[k, j] += np.isclose(series[:, 1], float(value), rtol=1e-5, atol=0).sum()
+    return (counts, totals) if logged else None

@@ -529,6 +529,19 @@ def algorithm_prefix(benchmark: str, name: str) -> str:
     return "" if baseline == "PPO" else f"{baseline} + "
 
 
+def fixed_settings(runs: list[Run], benchmark: str) -> dict:
+    """The settings of the benchmark's fixed-settings runs, those labelled by ``baseline_of`` alone: each setting
+    they all share, else (or without such runs) the script's default. The figures mark these values as the
+    baseline's own beside the values ULTHO chose."""
+    settings = dict(script_defaults(benchmark))
+    plain = [r for r in runs if r.kind == "ppo" and r.benchmark == benchmark and r.label == baseline_of(benchmark)]
+    for key in set().union(*(r.settings for r in plain)):
+        values = [r.settings.get(key) for r in plain]
+        if all(value == values[0] for value in values):
+            settings[key] = values[0]
+    return settings
+
+
 def method_order(runs: list[Run]) -> list[str]:
     """The methods' labels in the order of every table and legend: the baseline, ULTHO (the paper's bandit
     first, then by c and W), Relay-ULTHO, then the HPO studies."""

@@ -14,12 +14,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from ultho_reporting.decisions import exploration_ratio
-from ultho_reporting.figures import (decision_figures, efficiency_figure, learning_curves, method_colors,
-                                     per_run_figure, robustness_figure, schedule_figure, slug)
+from ultho_reporting.figures import (BAND_LINES, decision_figures, efficiency_figure, learning_curves,
+                                     method_groups, method_styles, per_run_figure, robustness_figure,
+                                     schedule_figure, slug)
 from ultho_reporting.landscape import landscape_section
 from ultho_reporting.protocol import protocol_section
 from ultho_reporting.references import BENCHMARKS, NORMALIZATION
-from ultho_reporting.runs import HPO_METHODS, Run, Study, baseline_of, method_order
+from ultho_reporting.runs import (HPO_METHODS, Run, Study, algorithm_prefix, baseline_of, fixed_settings,
+                                  method_order)
 from ultho_reporting.scores import (AGGREGATES, aggregate_with_interval, better_of_two, coverage_groups, efficiency_of,
                                     normalized_area, strata_of)
 
@@ -77,13 +79,13 @@ def benchmark_section(study: Study, benchmark: str, options: Options) -> tuple[l
     """The part of report.md on one benchmark, and its rows of aggregate.csv."""
     runs = [r for r in study.runs if r.benchmark == benchmark]
     methods = method_order(runs)
-    colors = method_colors(methods)
+    styles = method_styles(runs)
     lines = [f"## {BENCHMARKS[benchmark]}", ""]
-    lines += curves_section(runs, benchmark, colors, options)
+    lines += curves_section(runs, benchmark, styles, options)
     lines += scores_section(runs, benchmark, methods, options)
     aggregate_lines, rows = aggregate_section(runs, benchmark, methods, options)
     lines += aggregate_lines
-    lines += efficiency_section(runs, benchmark, methods, colors, options)
+    lines += efficiency_section(runs, benchmark, methods, styles, options)
     lines += hpo_section(runs, benchmark, methods, options)
     lines += decisions_section(runs, benchmark, methods, study.runs, options)
     lines += robustness_section(runs, benchmark, study.grid, options)
@@ -92,14 +94,24 @@ def benchmark_section(study: Study, benchmark: str, options: Options) -> tuple[l
     return lines, rows
 
 
-def curves_section(runs: list[Run], benchmark: str, colors: dict, options: Options) -> list[str]:
-    curves = learning_curves(runs, benchmark, colors, options.out)
+def curves_section(runs: list[Run], benchmark: str, styles: dict, options: Options) -> list[str]:
+    groups = method_groups(runs)
+    drawn = [(group, learning_curves(runs, benchmark, styles, group, options.out)) for group in groups]
     lines = ["### Learning curves", ""]
-    if not curves:
+    if not any(name for _, name in drawn):
         return lines + ["No run has TensorBoard return curves.", ""]
-    return lines + [f"![learning curves]({curves})", "",
-                    "Episodic return of the training episodes against environment steps; the line is the mean and "
-                    "the band one standard deviation over seeds. Relay-ULTHO shows the winning COI/NOI run.", ""]
+    for group, name in drawn:
+        if name and group.key:
+            lines += [f"Learning curves of {group.what}:", ""]
+        if name:
+            lines += [f"![learning curves]({name})", ""]
+    return lines + ["Episodic return of the training episodes against environment steps; the line is the mean "
+                    "over seeds, the band one standard deviation (drawn for the baseline alone in a panel of more "
+                    f"than {BAND_LINES} lines). Each method keeps one colour and line style in every figure; "
+                    "Relay-ULTHO is dashed in the colour of the ULTHO point it relays and shows the winning "
+                    "COI/NOI run."
+                    + (f" {len(method_order(runs))} methods are too many for one figure: the first shows the paper's "
+                       "protocol, the others each group beside the baseline." if len(groups) > 1 else ""), ""]
 
 
 def environments(runs: list[Run]) -> list[str]:
@@ -195,12 +207,14 @@ def aggregate_section(runs: list[Run], benchmark: str, methods: list[str],
     return lines, rows
 
 
-def efficiency_section(runs: list[Run], benchmark: str, methods: list[str], colors: dict,
+def efficiency_section(runs: list[Run], benchmark: str, methods: list[str], styles: dict,
                        options: Options) -> list[str]:
-    """Steps to solve per method and environment, the runs-solved figure, and the areas under the curves."""
+    """Steps to solve per method and environment, the runs-solved figures, and the areas under the curves."""
     threshold, window = options.solve_threshold, options.solve_window
-    efficiency = efficiency_figure(runs, benchmark, colors, threshold, window, options.out)
-    if not efficiency:
+    figures = [(group, efficiency_figure(runs, benchmark, styles, group, threshold, window, options.out))
+               for group in method_groups(runs)]
+    figures = [(group, name) for group, name in figures if name]
+    if not figures:
         return []
     envs = environments(runs)
     relays = any(r.kind == "relay" for r in runs)
@@ -234,7 +248,9 @@ def efficiency_section(runs: list[Run], benchmark: str, methods: list[str], colo
         if relays:
             cells.append(efficiency_of(members, threshold, window, from_start=True).text())
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    lines += ["", f"![sample efficiency]({efficiency})", ""]
+    lines.append("")
+    for group, name in figures:
+        lines += ([f"Runs solved, {group.what}:", ""] if group.key else []) + [f"![sample efficiency]({name})", ""]
     if paired:
         selected = [(label, [r.score for r in members if r.score is not None]) for label, members in rows_of
                     if label in (baseline, f"{baseline}, better of 2 seeds") or members[0].kind == "relay"]
@@ -283,8 +299,11 @@ def hpo_section(runs: list[Run], benchmark: str, methods: list[str], options: Op
     if schedule:
         lines += [f"![settings schedules]({schedule})", "",
                   "The settings behind each study's best final network (PBT and PB2 follow every exploit back "
-                  "into the trial it copied; random search keeps one setting), beside the settings in force in "
-                  "one ULTHO run per method (its lowest seed), on each environment's first study.", ""]
+                  "into the trial it copied; random search keeps one setting) on the first environment with "
+                  "studies: one column per method, one row per cluster, each seed in its own colour and line "
+                  "style (drawn a hair apart, so that seeds holding the same value stay visible); the last "
+                  "column, for comparison, the value in force at each iteration of one ULTHO run (the paper's "
+                  "(c, W) = (5, 10) where it ran, its lowest seed).", ""]
     return lines
 
 
@@ -295,12 +314,20 @@ def decisions_section(runs: list[Run], benchmark: str, methods: list[str], all_r
     ultho_methods = [m for m in methods if any(r.label == m and r.kind == "ultho" for r in runs)]
     if not ultho_methods:
         return []
+    baseline = baseline_of(benchmark)
     lines = ["### Decision process and confidence bounds", "",
-             "Left: each cluster's cumulative share of the selections so far (mean over runs); right: the "
-             "share of each value among its cluster's selections (pooled over runs). Bounds: each cluster's "
-             "utility U (mean of its last W credits, Eq. 6) and U + c·sqrt(ln i / N), the bound Eq. 4 "
-             "maximises, mean over runs. The tables: the credited selections of each value, pooled over the "
-             "runs; then each cluster's share of them on each environment, pooled over its runs (in brackets "
+             "The decision figures have one row per environment: left, each cluster's cumulative share of the "
+             "selections so far (mean over the environment's runs); middle, the share of each value among its "
+             "cluster's selections; right, the share of the logged iterations each value was in force (a "
+             "cluster the bandit stopped choosing keeps its last value, one it never chose the script's "
+             "setting), both pooled over the environment's runs. The hatched bar with the value in bold is "
+             f"{baseline}'s own setting, the one its fixed-settings runs used, so that a run that held "
+             f"{baseline}'s settings shows as tall hatched bars on the right. Bounds, one panel per environment "
+             "(each in its critic's units): each cluster's utility U (mean of its last W credits, Eq. 6) and "
+             "U + c·sqrt(ln i / N), the bound Eq. 4 maximises, mean over runs; lines that coincide (as those of "
+             "clusters the bandit never chose can) are drawn once in grey and named. The tables: the "
+             "credited selections of each value, pooled over the runs; then each cluster's share of them on each "
+             "environment, pooled over its runs (in brackets "
              "the lowest and highest share of a single run), and the bonus / utility spread: over the second "
              "half of each run, the median of the clusters' mean UCB bonus c·sqrt(ln i / N) divided by the "
              "spread of their utilities in the bound's units, the median over the runs; above 1 the bonus "
@@ -311,7 +338,7 @@ def decisions_section(runs: list[Run], benchmark: str, methods: list[str], all_r
     for label in ultho_methods:
         members = [r for r in runs if r.label == label]
         drawn = decision_figures(members, f"{BENCHMARKS[benchmark]} {label}", options.out,
-                                 slug(f"{benchmark}_{label}"))
+                                 slug(f"{benchmark}_{label}"), fixed_settings(all_runs, benchmark), baseline)
         lines += [f"#### {label}", ""] + [f"![{what}]({name})" for what, name in drawn] + [""]
         lines += selection_table(members) + [""]
         lines += decisions_by_environment(members) + [""]
@@ -389,14 +416,23 @@ def settings_in_force(runs: list[Run]) -> list[str]:
 
 
 def robustness_section(runs: list[Run], benchmark: str, grid: dict, options: Options) -> list[str]:
-    robustness, empty = robustness_figure(runs, benchmark, grid, options.seed, options.reps, options.out)
+    robustness, empty, single = robustness_figure(runs, benchmark, grid, options.seed, options.reps, options.out)
+    ultho = algorithm_prefix(benchmark, "ULTHO") + "ULTHO"
+    points = sorted({(c, window) for _, c, window in single})
+    one_point = (f"(c={points[0][0]:g}, W={points[0][1]}) on each environment" if len(points) == 1 else
+                 "on each environment: " + ", ".join(f"{env} (c={c:g}, W={window})" for env, c, window in single))
     if not robustness:
-        return []
+        return (["### Robustness over (c, W)", "",
+                 f"No figure: {ultho} ran at one (c, W) point {one_point}, so there is nothing to compare across "
+                 "(c, W); its scores are in the tables above.", ""] if single else [])
     return ["### Robustness over (c, W)", "", f"![robustness]({robustness})", "",
             "Mean score of ULTHO at each (c, W) of each environment with its 95% percentile-bootstrap interval "
             "over seeds; the dashed line and grey band are fixed-settings "
-            f"{baseline_of(benchmark)} on that environment."
-            + (f" No scored ULTHO runs at {', '.join(empty)}." if empty else ""), ""]
+            f"{baseline_of(benchmark)} on that environment. Every panel has the same y range, so that a "
+            "difference looks as large as it is on every environment."
+            + (f" No scored ULTHO runs at {', '.join(empty)}." if empty else "")
+            + (" Not drawn, with one (c, W) point each: "
+               + ", ".join(f"{env} (c={c:g}, W={window})" for env, c, window in single) + "." if single else ""), ""]
 
 
 def missing_section(study: Study) -> list[str]:
