@@ -128,7 +128,7 @@ def landscape_figure(env: str, grid: list[Setting], marks: dict[str, float], are
     if all(s.area is not None for s in grid):
         panels.append(("area under the normalized curve", lambda s: s.area,
                        lambda s: [a for a in map(normalized_area, s.runs) if a is not None]))
-    figure, axes = plt.subplots(1, len(panels), figsize=(6.2 * len(panels), 1.6 + 0.26 * len(grid)),
+    figure, axes = plt.subplots(1, len(panels), figsize=(6.2 * len(panels), max(3.4, 1.6 + 0.26 * len(grid))),
                                 squeeze=False, layout="constrained")
     styles = ["-", "--", "-.", ":"]
     for panel, (title, value, spread) in zip(axes[0], panels):
@@ -140,6 +140,7 @@ def landscape_figure(env: str, grid: list[Setting], marks: dict[str, float], are
             panel.plot([min(seeds), max(seeds)], [y, y], color=color, alpha=0.45, linewidth=2.5)
             panel.plot(value(setting), y, "o", color=color, markersize=5)
         panel.set_yticks(ys, [s.text() + (" (defaults)" if s is defaults else "") for s in ordered], fontsize=8)
+        panel.set_ylim(-0.6, len(ordered) - 0.4)
         for k, label in enumerate(marks):
             at = marks[label] if title == "final score" else area_marks.get(label)
             if at is not None:
