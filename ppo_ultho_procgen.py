@@ -623,6 +623,7 @@ def main(args: Args) -> None:
         report_progress(progress, args, iteration, num_iterations, global_step, sps, recent_returns,
                         f"{cluster}={format_value(choice)}" if bandit is not None else "fixed")
         if iteration % args.checkpoint_every == 0 or iteration == num_iterations:
+            writer.flush()  # the events up to the checkpoint reach the disk first: a kill after it must not lose them
             save_checkpoint(checkpoint_path, {
                 "script": SCRIPT, "format": CHECKPOINT_FORMAT, "config": config,
                 "settings": dataclasses.asdict(settings), "iteration": iteration, "global_step": global_step,

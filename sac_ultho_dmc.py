@@ -717,6 +717,7 @@ def main(args: Args) -> None:
                         "fixed" if bandit is None else "random actions")
 
         if iteration % args.checkpoint_every == 0 or iteration == num_iterations:
+            writer.flush()  # the events up to the checkpoint reach the disk first: a kill after it must not lose them
             save_checkpoint(checkpoint_path, {
                 "script": SCRIPT, "format": CHECKPOINT_FORMAT, "config": config,
                 "settings": dataclasses.asdict(settings),
