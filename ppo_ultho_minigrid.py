@@ -20,20 +20,25 @@ Defaults are the paper's MiniGrid settings (Appendix B, Tables 2-3; ``docs/paper
 import contextlib
 import dataclasses
 import functools
+import importlib.util
 import io
 import itertools
 import json
 import math
+import netrc
 import os
 import pickle
 import random
 import resource
+import secrets
 import sys
 import time
+import urllib.parse
 from collections import deque
 from dataclasses import dataclass
 from typing import Literal, Optional
 
+import av
 import gymnasium as gym
 import minigrid  # noqa: F401  (registers the MiniGrid-* environments)
 import numpy as np
@@ -53,6 +58,8 @@ from ultho_bandit import ULTHO, format_value, parse_clusters
 
 SCRIPT = "ppo_ultho_minigrid"
 CHECKPOINT_FORMAT = 1
+VIDEO_FPS = 8
+"""frames per second of --capture-video's MP4s: one agent step per frame, slow enough to follow"""
 
 SEARCH_SPACE = {
     "learning_rate": [1e-3, 2.5e-3, 5e-3],
@@ -160,6 +167,26 @@ class Args:
     quiet: bool = False
     """print nothing but errors"""
 
+    # Tracking, videos, evaluating a finished run (docs/scripts.md#tracking-videos-and-evaluation)
+    track: bool = False
+    """mirror the run to Weights & Biases: its config, its code and every TensorBoard scalar (WANDB_MODE=offline
+    logs locally, for `wandb sync` later)"""
+    wandb_project_name: str = "ultho"
+    """the W&B project of --track"""
+    wandb_entity: Optional[str] = None
+    """the W&B team or user of --track (default: your W&B default entity)"""
+    wandb_group: Optional[str] = None
+    """the W&B group of --track (sweep.py, relay_ultho.py and hpo_baselines.py group a study's runs by it)"""
+    capture_video: bool = False
+    """record the first episode of the final evaluation as an MP4 under runs/<run>/videos/ (with --evaluate, the
+    first episode it runs)"""
+    video_every: int = 0
+    """with --capture-video, also record one evaluation episode every this many iterations (0: the final one only)"""
+    evaluate: Optional[str] = None
+    """run directory of this script to evaluate instead of training: its checkpoint's policy plays --eval-episodes
+    episodes on the final evaluation's environment seeds; prints mean and std, writes nothing but
+    --capture-video's MP4"""
+
     def __post_init__(self) -> None:
         if self.run_name is None:  # resolved once, when the command line is parsed: every later use agrees
             self.run_name = f"{self.env_id}__{self.exp_name}__{self.seed}__{int(time.time())}"
@@ -184,15 +211,42 @@ class Settings:
         return cls(**{name: getattr(args, name) for name in TUNABLE})
 
 
-def make_env(env_id: str) -> gym.Env:
+class FirstEpisodeFrames(gym.Wrapper):
+    """Keeps the rendered frames of the environment's first episode, its last step included (which the vector
+    env's autoreset would otherwise replace by the next episode's first observation)."""
+
+    def __init__(self, env: gym.Env):
+        super().__init__(env)
+        self.frames: list[np.ndarray] = []
+        self.recording = True
+
+    def reset(self, **kwargs):
+        result = self.env.reset(**kwargs)
+        if self.recording:
+            self.frames.append(self.env.render())
+        return result
+
+    def step(self, action):
+        result = self.env.step(action)
+        if self.recording:
+            self.frames.append(self.env.render())
+            self.recording = not (result[2] or result[3])  # terminated or truncated
+        return result
+
+
+def make_env(env_id: str, record: bool = False) -> gym.Env:
+    if record:  # the whole grid as a picture, not the agent's 7x7 view
+        return FirstEpisodeFrames(ImgObsWrapper(gym.make(env_id, render_mode="rgb_array")))
     return ImgObsWrapper(gym.make(env_id))
 
 
-def make_envs(env_id: str, num_envs: int) -> gym.vector.SyncVectorEnv:
+def make_envs(env_id: str, num_envs: int, record_first: bool = False) -> gym.vector.SyncVectorEnv:
     # SAME_STEP autoreset: a finished episode's next observation is already the new episode's first, as
-    # CleanRL's PPO assumes. functools.partial keeps the vector env picklable for exact checkpoints.
+    # CleanRL's PPO assumes. functools.partial keeps the vector env picklable for exact checkpoints (and a
+    # training env's pickle as it was before recording existed).
+    recorded = functools.partial(make_env, env_id, record=True)
     return gym.vector.SyncVectorEnv(
-        [functools.partial(make_env, env_id) for _ in range(num_envs)],
+        [recorded if record_first and k == 0 else functools.partial(make_env, env_id) for k in range(num_envs)],
         autoreset_mode=gym.vector.AutoresetMode.SAME_STEP,
     )
 
@@ -296,10 +350,10 @@ class Agent(nn.Module):
         return self.critic(obs.flatten(1).float()).squeeze(-1)
 
 
-def sample(log_probs: torch.Tensor) -> torch.Tensor:
+def sample(log_probs: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
     """One action per row. argmax(p / E) with E ~ Exp(1) is an exact categorical sample (the exponential
     race) and costs less than half of torch.multinomial on these tiny batches."""
-    return (log_probs.exp() / torch.empty_like(log_probs).exponential_()).argmax(-1)
+    return (log_probs.exp() / torch.empty_like(log_probs).exponential_(generator=generator)).argmax(-1)
 
 
 def ppo_loss(agent: Agent, args: Args, settings: Settings, obs: torch.Tensor, actions: torch.Tensor,
@@ -334,6 +388,9 @@ def ppo_loss(agent: Agent, args: Args, settings: Settings, obs: torch.Tensor, ac
 
 def main(args: Args) -> None:
     space, checkpoint = validate(args)  # nothing is written or started before this returns
+    if args.evaluate is not None:  # a finished run's policy, not a training run
+        evaluate_run(evaluated_args(args, checkpoint), checkpoint)
+        return
     resumed = args.resume is not None
     if resumed:  # the run goes on with its own arguments
         args = resumed_args(args, checkpoint)
@@ -387,6 +444,7 @@ def main(args: Args) -> None:
         episode_return, episode_length = checkpoint["episode_return"], checkpoint["episode_length"]
         recent_returns.extend(checkpoint["recent_returns"])
         recent_lengths.extend(checkpoint["recent_lengths"])
+    tracker = start_tracking(args, run_dir, config)  # before the writer: W&B syncs the scalars it writes
     writer = open_run_dir(run_dir, config, checkpoint, resumed)
 
     # Rollout storage: observations stay uint8, the network converts them per batch.
@@ -525,6 +583,10 @@ def main(args: Args) -> None:
             ultho_seconds += time.perf_counter() - tick
         report_progress(progress, args, iteration, num_iterations, global_step, sps, recent_returns,
                         f"{cluster}={format_value(choice)}" if bandit is not None else "fixed")
+        if args.video_every and iteration % args.video_every == 0 and iteration != num_iterations:
+            path = video_path(run_dir, f"iteration{iteration}", global_step)
+            evaluate(agent, dataclasses.replace(args, eval_episodes=1), device, path)
+            log_video(tracker, path)
         if iteration % args.checkpoint_every == 0 or iteration == num_iterations:
             writer.flush()  # the events up to the checkpoint reach the disk first: a kill after it must not lose them
             save_checkpoint(checkpoint_path, {
@@ -543,10 +605,13 @@ def main(args: Args) -> None:
     envs.close()
 
     wall_time = elapsed_before + time.time() - start_time
-    eval_returns = evaluate(agent, args, device) if args.eval_episodes > 0 and diverged is None else []
+    final_video = video_path(run_dir, "final", global_step) if args.capture_video and diverged is None else None
+    eval_returns = evaluate(agent, args, device, final_video) if args.eval_episodes > 0 and diverged is None else []
     if eval_returns:
         writer.add_scalar("eval/return", float(np.mean(eval_returns)), global_step)
     writer.close()
+    log_video(tracker, final_video)
+    stop_tracking(tracker, diverged)
     write_summary(run_dir, args, config, settings, tuned, bandit, global_step,
                   num_iterations if diverged is None else diverged["iteration"], wall_time,
                   ultho_seconds, rollout_seconds, update_seconds, device, recent_returns, recent_lengths,
@@ -555,13 +620,17 @@ def main(args: Args) -> None:
         stop_non_finite(diverged, settings, tuned, checkpoint_path)
 
 
-def evaluate(agent: Agent, args: Args, device: torch.device) -> list[float]:
+def evaluate(agent: Agent, args: Args, device: torch.device, video_path: Optional[str] = None) -> list[float]:
     """Returns of --eval-episodes fresh episodes (seeds unused in training), one per environment, sampling
-    the policy as in training."""
+    the policy as in training from a generator of its own (evaluating changes nothing in training, and --evaluate
+    repeats it exactly); with video_path, the first episode is recorded there."""
+    generator = torch.Generator(device=device)
+    generator.manual_seed(episode_seed(args.seed, 2))
     returns: list[float] = []
     while len(returns) < args.eval_episodes:
         n = min(args.eval_episodes - len(returns), 64)
-        envs = make_envs(args.env_id, n)
+        record = video_path is not None and not returns
+        envs = make_envs(args.env_id, n, record_first=record)
         # Drawn, not consecutive: seed + offset + k would give runs with neighbouring seeds nearly the same
         # evaluation episodes (training's seed + k, CleanRL's, stays as it is).
         obs, _ = envs.reset(seed=[episode_seed(args.seed, 1, len(returns) + k) for k in range(n)])
@@ -569,12 +638,28 @@ def evaluate(agent: Agent, args: Args, device: torch.device) -> list[float]:
         while running.any():
             with torch.no_grad():
                 log_probs, _ = agent(torch.from_numpy(obs).to(device))
-            obs, reward, terminated, truncated, _ = envs.step(sample(log_probs).cpu().numpy())
+            obs, reward, terminated, truncated, _ = envs.step(sample(log_probs, generator).cpu().numpy())
             total += reward * running
             running &= ~(terminated | truncated)
+        if record:
+            write_video(video_path, envs.envs[0].frames, VIDEO_FPS)
         envs.close()
         returns += total.tolist()
     return returns
+
+
+def evaluate_run(args: Args, checkpoint: dict) -> None:
+    """--evaluate: the policy of the run's checkpoint on the final evaluation's episodes, reported on stdout."""
+    MiniGridEnv.gen_obs = fast_gen_obs if args.fast_obs else MINIGRID_GEN_OBS
+    if args.torch_threads > 0:
+        torch.set_num_threads(args.torch_threads)
+    device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
+    spaces = make_env(args.env_id)
+    agent = Agent(int(np.prod(spaces.observation_space.shape)), spaces.action_space.n).to(device)
+    spaces.close()
+    agent.load_state_dict(checkpoint["agent"])
+    path = video_path(args.evaluate, "evaluate", checkpoint["global_step"]) if args.capture_video else None
+    report_evaluation(args, checkpoint, evaluate(agent, args, device, path), path)
 
 
 # ---- Bookkeeping: input, checkpoints, logging, summary (not the algorithm) ----
@@ -606,11 +691,17 @@ def parse_args(argv: list[str] | None = None) -> Args:
 
 def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
     """Checks everything before any file is written or environment started; returns (space, checkpoint), the
-    checkpoint of --resume or of --init-from."""
+    checkpoint of --resume, --init-from or --evaluate."""
     checkpoint = None
     if args.resume is not None and args.init_from is not None:
         raise UsageError("--resume and --init-from exclude each other: --resume continues a run with its own settings")
-    if args.resume is not None:
+    if args.evaluate is not None and (args.resume is not None or args.init_from is not None or args.track):
+        raise UsageError("--evaluate plays a run's policy and writes nothing: it goes without --resume, --init-from "
+                         "and --track")
+    if args.evaluate is not None:
+        checkpoint = load_checkpoint(args.evaluate, "--evaluate")
+        args = evaluated_args(args, checkpoint)  # what is checked below is what the evaluation will use
+    elif args.resume is not None:
         checkpoint = load_checkpoint(args.resume, "--resume")
         args = resumed_args(args, checkpoint)  # what is checked below is what the run will use
     elif args.init_from is not None:
@@ -623,6 +714,7 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
         if args.total_timesteps // (args.num_envs * args.num_steps) <= checkpoint["iteration"]:
             raise UsageError(f"--total-timesteps {args.total_timesteps}: the checkpoint of --init-from "
                              f"{args.init_from} is already at step {checkpoint['global_step']}")
+    check_output_options(args)
     try:
         spec = gym.spec(args.env_id)
     except gym.error.Error:
@@ -659,7 +751,7 @@ def validate(args: Args) -> tuple[dict[str, list] | None, dict | None]:
         if args.ultho_utility == "authors-return" and args.ultho_credit == "improvement":
             raise UsageError("--ultho-credit improvement does not go with --ultho-utility authors-return (a choice "
                              "would be measured against its own credit); use --ultho-credit level")
-    if args.resume is None:
+    if args.resume is None and args.evaluate is None:
         if os.sep in args.run_name or args.run_name in ("", ".", ".."):
             raise UsageError(f"--run-name {args.run_name!r} is not a plain directory name")
         run_dir = os.path.join(args.runs_dir, args.run_name)
@@ -699,6 +791,50 @@ def resumed_args(args: Args, checkpoint: dict) -> Args:
     --torch-threads, which come from this command line."""
     return dataclasses.replace(Args(**checkpoint["config"]), resume=args.resume, quiet=args.quiet, cuda=args.cuda,
                                torch_threads=args.torch_threads)
+
+
+def evaluated_args(args: Args, checkpoint: dict) -> Args:
+    """The arguments of the run that --evaluate plays: its checkpoint's, but for --evaluate, --eval-episodes,
+    --capture-video, --quiet, --cuda and --torch-threads, which come from this command line (nothing is tracked)."""
+    return dataclasses.replace(Args(**checkpoint["config"]), evaluate=args.evaluate, eval_episodes=args.eval_episodes,
+                               capture_video=args.capture_video, video_every=0, track=False, resume=None,
+                               init_from=None, quiet=args.quiet, cuda=args.cuda, torch_threads=args.torch_threads)
+
+
+def check_output_options(args: Args) -> None:
+    """--track's W&B names and login, --capture-video's and --evaluate's numbers, before anything starts."""
+    if args.evaluate is not None and args.eval_episodes < 1:
+        raise UsageError(f"--evaluate plays --eval-episodes episodes: it must be >= 1, got {args.eval_episodes}")
+    if args.video_every < 0:
+        raise UsageError(f"--video-every must be >= 0 (0: the final evaluation only), got {args.video_every}")
+    if args.video_every and not args.capture_video:
+        raise UsageError(f"--video-every {args.video_every} records videos: add --capture-video")
+    if args.capture_video and args.eval_episodes == 0:
+        raise UsageError("--capture-video records evaluation episodes: --eval-episodes 0 runs none")
+    if not args.track:
+        if args.wandb_entity is not None or args.wandb_group is not None:
+            raise UsageError("--wandb-entity and --wandb-group name where --track logs: add --track")
+        return
+    for flag, name in (("--wandb-project-name", args.wandb_project_name), ("--wandb-entity", args.wandb_entity),
+                       ("--wandb-group", args.wandb_group)):
+        if name is not None and not (0 < len(name) <= 128 and not set(name) & set("/\\#?%:")):
+            raise UsageError(f"{flag} {name!r}: W&B names are 1 to 128 characters without / \\ # ? % :")
+    if importlib.util.find_spec("wandb") is None:
+        raise UsageError("--track needs the wandb package: pip install -r requirements.txt")
+    if os.environ.get("WANDB_MODE", "").lower() not in ("offline", "disabled", "dryrun") and not wandb_logged_in():
+        raise UsageError("--track: no W&B login on this machine: run `wandb login`, or set WANDB_MODE=offline to "
+                         "log locally and `wandb sync` the run later")
+
+
+def wandb_logged_in() -> bool:
+    """Whether W&B finds an API key: WANDB_API_KEY, or the netrc entry `wandb login` writes for its host."""
+    if os.environ.get("WANDB_API_KEY"):
+        return True
+    host = urllib.parse.urlparse(os.environ.get("WANDB_BASE_URL", "https://api.wandb.ai")).hostname
+    try:
+        return netrc.netrc(os.environ.get("NETRC")).authenticators(host) is not None
+    except (OSError, netrc.NetrcParseError):
+        return False
 
 
 def load_checkpoint(run_dir: str, flag: str) -> dict:
@@ -771,6 +907,70 @@ def open_run_dir(run_dir: str, config: dict, checkpoint: Optional[dict], resumed
         writer.add_text("hyperparameters",
                         "|param|value|\n|-|-|\n" + "\n".join(f"|{k}|{v}|" for k, v in config.items()))
     return writer
+
+
+def start_tracking(args: Args, run_dir: str, config: dict) -> Optional[object]:
+    """With --track, the W&B run that mirrors this one: its config, the script's code, and the scalars of the
+    TensorBoard writer opened after it. The W&B id is kept in the run directory (wandb_id), so a resumed run goes
+    on in the same W&B run. None without --track."""
+    if not args.track:
+        return None
+    import wandb  # only with --track: it takes a second to import
+
+    os.makedirs(run_dir, exist_ok=True)
+    id_path = os.path.join(run_dir, "wandb_id")
+    if os.path.exists(id_path):
+        with open(id_path, encoding="utf-8") as f:
+            run_id = f.read().strip()
+    else:
+        run_id = secrets.token_hex(6)  # W&B ids are short lowercase letters and digits
+        atomic_write_bytes(id_path, run_id.encode())
+    return wandb.init(project=args.wandb_project_name, entity=args.wandb_entity, group=args.wandb_group,
+                      name=args.run_name, id=run_id, resume="allow", config=config, sync_tensorboard=True,
+                      save_code=True)
+
+
+def stop_tracking(tracker: Optional[object], diverged: Optional[dict]) -> None:
+    """Ends the W&B run once the TensorBoard writer is closed (its last scalars are synced first)."""
+    if tracker is not None:
+        tracker.finish(exit_code=0 if diverged is None else 1)
+
+
+def video_path(run_dir: str, label: str, global_step: int) -> str:
+    """runs/<run>/videos/<label>-step<global step>.mp4; the folder is made on first use."""
+    os.makedirs(os.path.join(run_dir, "videos"), exist_ok=True)
+    return os.path.join(run_dir, "videos", f"{label}-step{global_step}.mp4")
+
+
+def write_video(path: str, frames: list[np.ndarray], fps: int) -> None:
+    """RGB frames (height, width, 3) as an H.264 MP4 (PyAV's own FFmpeg, nothing to install), written atomically;
+    odd sizes are padded by a pixel, which H.264's 4:2:0 colour needs."""
+    height, width = frames[0].shape[:2]
+    tmp = f"{path}.tmp"
+    with av.open(tmp, "w", format="mp4") as container:
+        stream = container.add_stream("libx264", rate=fps)
+        stream.width, stream.height, stream.pix_fmt = width + width % 2, height + height % 2, "yuv420p"
+        for frame in frames:
+            frame = np.pad(frame, ((0, height % 2), (0, width % 2), (0, 0)), mode="edge")
+            container.mux(stream.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")))
+        container.mux(stream.encode())
+    os.replace(tmp, path)
+
+
+def log_video(tracker: Optional[object], path: Optional[str]) -> None:
+    """With --track, the MP4 goes to W&B too (videos/<label>)."""
+    if tracker is not None and path is not None:
+        import wandb
+
+        label = os.path.basename(path).rsplit("-step", 1)[0]
+        tracker.log({f"videos/{label}": wandb.Video(path, format="mp4")})
+
+
+def report_evaluation(args: Args, checkpoint: dict, returns: list[float], path: Optional[str]) -> None:
+    """--evaluate's result on stdout: mean and std, then every episode's return (exactly, as summary.json's eval)."""
+    print(f"[{SCRIPT}] {args.evaluate} at step {checkpoint['global_step']}: mean return {np.mean(returns):.4g} ± "
+          f"{np.std(returns):.4g} over {len(returns)} episodes" + (f", video {path}" if path else ""))
+    print(f"[{SCRIPT}] returns: {json.dumps(returns)}", flush=True)
 
 
 def save_checkpoint(path: str, checkpoint: dict) -> None:

@@ -295,3 +295,56 @@ def assert_authors_credit_timing_and_exact_resume(script: str, tmp_path, args: l
     assert summary(str(tmp_path / "whole"))["bandit"] == summary(str(tmp_path / "killed"))["bandit"]
     for tag in ("ultho/selected_cluster", "ultho/credit", "ultho/ucb/vf_coef", "losses/value_loss"):
         assert whole[tag] == resumed[tag], tag
+
+
+def wandb_offline_runs(wandb_dir) -> dict[str, list]:
+    """{run id: its records} of every offline W&B run under ``wandb_dir`` (WANDB_DIR), read back from the
+    run-<id>.wandb files that `wandb sync` would upload: W&B's protobuf Records in a LevelDB-style log (a 7-byte
+    header, then 32 KiB blocks of chunks, each a 4-byte checksum, a 2-byte length and a 1-byte type: full, first,
+    middle, last). A resumed run's second file adds to the same id."""
+    from wandb.proto import wandb_internal_pb2
+
+    runs: dict[str, list] = {}
+    for directory, _, names in sorted(os.walk(str(wandb_dir))):
+        for name in sorted(names):
+            if not (name.startswith("run-") and name.endswith(".wandb")):
+                continue
+            with open(os.path.join(directory, name), "rb") as f:
+                data = f.read()
+            assert data[:4] == b":W&B", name
+            position, pending, records = 7, b"", []
+            while position + 7 <= len(data):
+                left_in_block = 32768 - position % 32768
+                kind = data[position + 6]
+                if left_in_block < 7 or kind == 0:  # the block's zero padding
+                    position += left_in_block
+                    continue
+                length = int.from_bytes(data[position + 4:position + 6], "little")
+                pending += data[position + 7:position + 7 + length]
+                position += 7 + length
+                if kind in (1, 4):  # a full record, or the last chunk of one
+                    record = wandb_internal_pb2.Record()
+                    record.ParseFromString(pending)
+                    records.append(record)
+                    pending = b""
+            runs.setdefault(name.removeprefix("run-").removesuffix(".wandb"), []).extend(records)
+    return runs
+
+
+def wandb_history(records: list) -> dict[str, list[tuple[int, float]]]:
+    """{tag: [(global step, value)]} of the scalars W&B received (synced from TensorBoard: keyed by global_step)."""
+    series: dict[str, list[tuple[int, float]]] = {}
+    for record in records:
+        if record.WhichOneof("record_type") != "history":
+            continue
+        row = {item.key or "/".join(item.nested_key): json.loads(item.value_json) for item in record.history.item}
+        for tag, value in row.items():
+            if not tag.startswith("_") and tag != "global_step" and isinstance(value, (int, float)):
+                series.setdefault(tag, []).append((int(row.get("global_step", -1)), float(value)))
+    return series
+
+
+def without_wandb_login(home) -> dict:
+    """An environment in which W&B finds no key: no WANDB_API_KEY, no netrc (HOME is empty), not offline."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("WANDB_") and k != "NETRC"}
+    return {**env, "HOME": str(home)}

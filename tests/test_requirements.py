@@ -14,7 +14,7 @@ MODULES = {"torch": "torch", "gymnasium": "gymnasium", "numpy": "numpy", "tensor
            "pybullet": "pybullet", "pybullet-envs-gymnasium": "pybullet_envs_gymnasium", "ray": "ray",
            "matplotlib": "matplotlib", "cffi": "cffi", "stable-baselines3": "stable_baselines3", "pandas": "pandas",
            "pyarrow": "pyarrow", "tensorboardx": "tensorboardX", "pydantic": "pydantic", "scikit-learn": "sklearn",
-           "scipy": "scipy", "dm-control": "dm_control.suite", "mujoco": "mujoco"}
+           "scipy": "scipy", "dm-control": "dm_control.suite", "mujoco": "mujoco", "wandb": "wandb", "av": "av"}
 # Ray Tune and PB2 (hpo_baselines.py) import only with their extras present, at these pins.
 EXTRA_MODULES = ["ray.tune", "ray.tune.schedulers.pb2"]
 

@@ -17,13 +17,16 @@ BANNER = "# ---- Bookkeeping: input, checkpoints, logging, summary (not the algo
 # Top-level functions and classes (and the `if __name__ == "__main__":` block, as MAIN_GUARD) that must read the same
 # in every PPO script, and those that sac_ultho_dmc.py shares with them.
 MAIN_GUARD = "__main__"
+WATCHING_BLOCKS = ("evaluated_args", "check_output_options", "wandb_logged_in", "start_tracking", "stop_tracking",
+                   "video_path", "write_video", "log_video", "report_evaluation")
 PPO_BLOCKS = ("Settings", "layer_init", "UsageError", "parse_args", "checked_search_space", "check_setting",
               "resumed_args", "load_checkpoint",
               "is_run_of_this_script", "restore", "rng_state", "restore_rng", "open_run_dir", "save_checkpoint",
               "stop_non_finite", "log_iteration", "log_bandit", "report_progress", "atomic_write_bytes",
-              "atomic_save_json", MAIN_GUARD)
+              "atomic_save_json", *WATCHING_BLOCKS, MAIN_GUARD)
 SAC_BLOCKS = ("UsageError", "parse_args", "resumed_args", "load_checkpoint", "is_run_of_this_script", "open_run_dir",
-              "stop_non_finite", "report_progress", "atomic_write_bytes", "atomic_save_json", MAIN_GUARD)
+              "stop_non_finite", "report_progress", "atomic_write_bytes", "atomic_save_json", *WATCHING_BLOCKS,
+              MAIN_GUARD)
 
 # What each script's bookkeeping section holds at least (after the banner, in any order).
 BOOKKEEPING = ("UsageError", "parse_args", "validate", "check_setting", "checked_search_space", "load_checkpoint",
