@@ -23,6 +23,10 @@ budget, every exploit, the best trial and its settings schedule (docs/hpo_baseli
 Killed and started again with the same arguments, a study continues from Tune's experiment state: finished
 trials are not run again, running ones restart from their last reported checkpoint (at most one interval
 lost). Locally a Ray instance is started for the study; ``--ray-address`` uses an existing cluster.
+
+With ``--track`` every trial is a Weights & Biases run (its segments go on in the same W&B run), all trials of the
+study in one W&B group: the study directory's name unless ``--wandb-group`` says otherwise (Tune's experiment in
+it is always called ``tune``; sweep.py gives its own group, so that a sweep is one group).
 """
 
 import argparse
@@ -48,8 +52,9 @@ from dataclasses import dataclass
 from typing import Optional
 
 from ultho_bandit import format_value
-from ultho_runs import (UsageError, atomic_write_json, check_script_args, flag_values, parse_split_args, print_error,
-                        read_json, relative_to, resolve_script, without_flag)
+from ultho_runs import (UsageError, add_tracking_options, atomic_write_json, check_script_args, flag_values,
+                        parse_split_args, print_error, read_json, relative_to, resolve_script, tracking_flags,
+                        without_flag)
 
 TOOL = "hpo_baselines.py"
 STUDY_FORMAT = 1
@@ -82,6 +87,8 @@ class Plan:
     interval: int
     eval_episodes: Optional[int]
     """the user's --eval-episodes, for the final segment (earlier ones evaluate nothing)"""
+    tracking: tuple[str, ...] = ()
+    """the W&B flags of --track, for every segment (none without it)"""
 
     @property
     def trials_dir(self) -> str:
@@ -115,7 +122,7 @@ class Plan:
         start = ["--init-from", init_from] if init_from is not None else []
         return [sys.executable, self.script, *self.script_args, *flags, "--no-ultho", "--seed", str(seed),
                 "--total-timesteps", str(end_step), *evaluation, *start, "--runs-dir", self.trials_dir,
-                "--run-name", name, "--quiet"]
+                "--run-name", name, "--quiet", *self.tracking]
 
 
 def trial_index(trial_id: str) -> int:
@@ -359,13 +366,14 @@ def checked_plan(args: argparse.Namespace, script_args: list[str], study_dir: st
             if token == flag or token.startswith(flag + "="):
                 raise UsageError(f"{flag} is set by {TOOL} for every trial (--seed before -- is the study's seed); "
                                  "remove it from the arguments after --")
+    tracking = tracking_flags(args, script_args, os.path.basename(study_dir))
     script = resolve_script(args.script)
     module = load_script(script)
     stem = module.SCRIPT
     try:  # the script's own checks, every candidate value of the search space included
         # A runs directory that does not exist: the script's check that its run directory is new must pass.
         parsed = module.parse_args([*script_args, "--runs-dir", os.path.join(study_dir, "tmp", "never-written"),
-                                    "--run-name", "trial_0"])
+                                    "--run-name", "trial_0", *tracking])
         space, _ = module.validate(parsed)
     except module.UsageError as err:
         raise UsageError(f"{stem}: {err}") from None
@@ -390,7 +398,7 @@ def checked_plan(args: argparse.Namespace, script_args: list[str], study_dir: st
                 study_dir=study_dir, seed=args.seed, space=searched,
                 fixed={name: values[0] for name, values in space.items() if len(values) == 1},
                 batch_size=batch_size, final_step=final_step, interval=interval,
-                eval_episodes=int(eval_given[0]) if eval_given else None)
+                eval_episodes=int(eval_given[0]) if eval_given else None, tracking=tuple(tracking))
 
 
 def default_study_dir(args: argparse.Namespace, script_args: list[str]) -> str:
@@ -537,7 +545,8 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
                "-- --env-id coinrun\n"
                "  python hpo_baselines.py ppo_ultho_atari.py --method random --samples 8 -- --env-id Qbert\n"
                "\nThe tool sets the script's --seed (trial k: SEED*1000+k), --init-from, --run-name, --runs-dir "
-               "and --no-ultho itself.\nFormats and every choice: docs/hpo_baselines.md.",
+               "and --no-ultho itself; --track and --wandb-* go before --, to the tool, which passes them on."
+               "\nFormats and every choice: docs/hpo_baselines.md.",
     )
     parser.add_argument("script", help="the training script, e.g. ppo_ultho_minigrid.py")
     parser.add_argument("--method", required=True, metavar="{pbt,pb2,random}",
@@ -570,6 +579,8 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     parser.add_argument("--max-retries", type=int, default=2, metavar="N",
                         help="times a failed trial restarts from its last checkpoint (default 2)")
     parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    add_tracking_options(parser, "every trial (one W&B run each, across its segments)",
+                         "the study directory's name")
     return parse_split_args(parser, argv)
 
 

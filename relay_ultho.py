@@ -11,6 +11,9 @@ records all of it and is rewritten atomically as the runs finish.
 The tool is restartable: killed at any point and started again with the same arguments, it skips every run
 that has its ``summary.json``, resumes an interrupted one from its ``checkpoint.pt`` and starts afresh one
 that was killed before its first checkpoint (the run-directory conventions of ``ultho_runs.py``).
+
+With ``--track`` the runs it starts are mirrored to Weights & Biases, all in one W&B group: the relay directory's
+name unless ``--wandb-group`` says otherwise (sweep.py gives its own, so that a sweep is one group).
 """
 
 import argparse
@@ -22,8 +25,9 @@ import sys
 from typing import Callable, Optional, Sequence, TextIO
 
 from ultho_bandit import clusters_of_interest, format_value
-from ultho_runs import (RunFailed, UsageError, atomic_write_json, check_script_args, complete_run, flag_values,
-                        parse_split_args, print_error, read_json, relative_to, resolve_script, without_flag)
+from ultho_runs import (RunFailed, UsageError, add_tracking_options, atomic_write_json, check_script_args, complete_run,
+                        flag_values, parse_split_args, print_error, read_json, relative_to, resolve_script,
+                        tracking_flags, without_flag)
 
 TOOL = "relay_ultho.py"
 RELAY_FORMAT = 1
@@ -70,8 +74,8 @@ def relay(script: str, script_args: list[str], relay_dir: str, from_run: Optiona
           log: Callable[[str], None] = print) -> dict:
     """Runs Relay-ULTHO to the end, reusing whatever is already done in ``relay_dir``; returns relay.json.
 
-    ``run_flags`` go to every command but not into relay.json (``--quiet``). Raises UsageError for bad input
-    (before anything is written) and RunFailed for a run that did not finish.
+    ``run_flags`` go to every command but not into relay.json (``--quiet``, the W&B flags of --track). Raises
+    UsageError for bad input (before anything is written) and RunFailed for a run that did not finish.
     """
     check_script_args(script_args)
     script_path = resolve_script(script)
@@ -163,7 +167,8 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     """(the tool's options, the script's arguments after --)."""
     parser = argparse.ArgumentParser(
         prog=TOOL,
-        usage=f"{TOOL} [-h] [--from RUN_DIR] [--relay-dir DIR] [--max-retries N] [--quiet] SCRIPT [-- SCRIPT_ARGS...]",
+        usage=f"{TOOL} [-h] [--from RUN_DIR] [--relay-dir DIR] [--max-retries N] [--quiet] [--track "
+              "[--wandb-project-name NAME] [--wandb-entity NAME] [--wandb-group NAME]] SCRIPT [-- SCRIPT_ARGS...]",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Relay-ULTHO (Algorithm 2): a full ULTHO run, then ULTHO on its most-selected cluster (COI) "
                     "and on its least-selected cluster (NOI) alone, same seed and settings; the better of the two "
@@ -175,8 +180,10 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
                "  python relay_ultho.py ppo_ultho_minigrid.py --from runs/<a finished ULTHO run>\n"
                "  python relay_ultho.py ppo_ultho_minigrid.py --relay-dir runs/relay-doorkey -- "
                "--ultho-c 1 --ultho-window 50\n"
+               "  python relay_ultho.py ppo_ultho_minigrid.py --relay-dir runs/relay-doorkey --track   "
+               "# W&B group relay-doorkey\n"
                "\nThe tool sets the script's --runs-dir, --run-name and --resume itself; --no-ultho and --init-from "
-               "are refused.",
+               "are refused; --track and --wandb-* go before --, to the tool, which passes them on.",
     )
     parser.add_argument("script", help="the training script, e.g. ppo_ultho_minigrid.py")
     parser.add_argument("--from", dest="from_run", metavar="RUN_DIR",
@@ -187,6 +194,7 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     parser.add_argument("--max-retries", type=int, default=2, metavar="N",
                         help="times a failed or interrupted run is resumed from its checkpoint (default: 2)")
     parser.add_argument("--quiet", action="store_true", help="print nothing but errors (also passed to the script)")
+    add_tracking_options(parser, "the runs the relay starts (not a --from run)", "the relay directory's name")
     return parse_split_args(parser, argv)
 
 
@@ -194,8 +202,9 @@ def main(argv: list[str]) -> int:
     try:
         args, script_args = parse_args(argv)
         relay_dir = args.relay_dir or default_relay_dir(args.script, script_args, args.from_run)
+        tracking = tracking_flags(args, script_args, os.path.basename(os.path.abspath(relay_dir)))
         relay(args.script, script_args, relay_dir, args.from_run, args.max_retries,
-              run_flags=["--quiet"] if args.quiet else [],
+              run_flags=[*(["--quiet"] if args.quiet else []), *tracking],
               log=(lambda line: None) if args.quiet else (lambda line: print(line, flush=True)))
     except UsageError as err:
         print_error(TOOL, err)

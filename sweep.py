@@ -11,7 +11,8 @@ restored from there, so a fresh clone on a new machine reruns only what had not 
 ``<out>/sweep.json`` maps every run to its grid point and status; ``<out>/logs/<run>.log`` holds each run's output.
 
 Runs go to local processes (``--workers`` at a time) or, with ``--ray-address``, as tasks to an existing Ray
-cluster, which places them on its nodes by the resources each asks for.
+cluster, which places them on its nodes by the resources each asks for. With ``--track`` every run is mirrored to
+Weights & Biases, in one W&B group named after the sweep directory (a relay's and a study's runs included).
 """
 
 import argparse
@@ -30,8 +31,8 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 from ultho_bandit import CREDITS, SCALES, STRATEGIES, format_value, parse_clusters
-from ultho_runs import (RunFailed, UsageError, atomic_write_json, complete_run, parse_split_args, print_error,
-                        read_json, resolve_script, run_state, script_command)
+from ultho_runs import (RunFailed, UsageError, add_tracking_options, atomic_write_json, complete_run, parse_split_args,
+                        print_error, read_json, resolve_script, run_state, script_command, tracking_flags)
 
 TOOL = "sweep.py"
 SWEEP_FORMAT = 1
@@ -89,7 +90,8 @@ class Run:
     args: list[str]
     """the script's arguments (a relay or a study: those after --)"""
     tool_args: list[str] = field(default_factory=list)
-    """a study's options for hpo_baselines.py (method, population, seed, where Ray is)"""
+    """a study's options for hpo_baselines.py (method, population, seed, where Ray is), and a relay's or a study's
+    W&B flags (--track), which its tool passes on to each run it starts"""
     source: Optional["Run"] = None
     """a relay's full ULTHO run, reused with --from when the grid has it"""
     variant: Optional[str] = None
@@ -115,7 +117,7 @@ class Run:
     def relay_command(self, max_retries: int) -> list[str]:
         source = ["--from", self.source.path] if self.source is not None else []
         return [sys.executable, RELAY_TOOL, self.script, *source, "--relay-dir", self.path,
-                "--max-retries", str(max_retries), "--quiet", "--", *self.args]
+                "--max-retries", str(max_retries), "--quiet", *self.tool_args, "--", *self.args]
 
     def study_command(self) -> list[str]:
         return [sys.executable, HPO_TOOL, self.script, *self.tool_args, "--study-dir", self.path, "--quiet", "--",
@@ -215,6 +217,16 @@ def expand(scripts: list[str], env_ids: list[str], methods: list[str], points: l
                             [*base[:2], *budget, *extra_args],
                             tool_args=["--method", method, *size, "--seed", str(seed), *study_resources]))
     return runs
+
+
+def track(runs: list[Run], flags: list[str]) -> None:
+    """Adds the W&B flags of --track to every run: to a script's arguments, or to the options of the relay or study
+    tool, which gives them to each run it starts."""
+    for run in runs:
+        if run.method in ("relay", *HPO_METHODS):
+            run.tool_args = [*run.tool_args, *flags]
+        else:
+            run.args = [*run.args, *flags]
 
 
 def execute(run: Run, max_retries: int, log_path: str) -> tuple[str, int, Optional[str]]:
@@ -402,7 +414,8 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
                "  python sweep.py --paper minigrid --total-timesteps 100000       # scaled down, local processes\n"
                "  python sweep.py --paper procgen --ray-address 10.0.0.1:6379 --cpus-per-run 4 --gpus-per-run 0.5\n"
                "  python sweep.py --scripts ppo_ultho_minigrid.py --env-ids MiniGrid-Empty-5x5-v0 \\\n"
-               "      --methods ppo ultho --seeds 1 2 3 --out runs/empty -- --num-envs 8\n",
+               "      --methods ppo ultho --seeds 1 2 3 --out runs/empty -- --num-envs 8\n"
+               "  python sweep.py --paper minigrid --seeds 1 2 --track            # W&B group sweep-minigrid\n",
     )
     grid = parser.add_argument_group("grid (a --paper preset fills every field; each given field overrides it)")
     grid.add_argument("--paper", choices=sorted(PRESETS), help="the paper's grid for this benchmark: its script, "
@@ -445,7 +458,10 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     execution.add_argument("--max-retries", type=int, default=2, metavar="N",
                            help="times a failed or interrupted run is resumed from its checkpoint (default 2)")
     execution.add_argument("--dry-run", action="store_true",
-                           help="print every run's command and the compute it needs; run nothing")
+                           help="print every run's command and the compute it needs; run nothing (with --track, no "
+                                "W&B login is needed for it)")
+    add_tracking_options(parser, "every run of the sweep (a relay's and a study's runs too)",
+                         "the name of the --out directory")
     return parse_split_args(parser, argv)
 
 
@@ -492,6 +508,7 @@ def main(argv: list[str]) -> int:
                     raise UsageError(f"{flag} after -- is set by the grid; use the grid's own options")
         # Absolute, because a Ray task's working directory is not the driver's.
         out = os.path.abspath(args.out or os.path.join("runs", f"sweep-{args.paper or 'custom'}"))
+        tracking = tracking_flags(args, extra_args, os.path.basename(out), check_login=not args.dry_run)
         grid = {"scripts": [os.path.basename(s) for s in scripts], "env_ids": env_ids, "methods": methods,
                 "c": c_values, "window": windows, "points": [[c, w] for c, w in points],
                 "variants": [":".join(v) for v in variants], "seeds": seeds, "population": args.population,
@@ -505,6 +522,7 @@ def main(argv: list[str]) -> int:
             raise UsageError("--grid-clusters sets the grid method's clusters; add grid to --methods")
         runs = expand(scripts, env_ids, methods, points, seeds, total_timesteps, extra_args, out, tuple(variants),
                       args.population, study_resources, args.grid_clusters)
+        track(runs, tracking)
         fixed = {token for run in runs if run.method == "grid" for token in setting_flags(run.settings)[::2]}
         for token in extra_args:
             if token.split("=", 1)[0] in fixed:

@@ -9,7 +9,8 @@ which makes every tool restartable: a finished run is never repeated, an interru
 
 A tool's command line is its own options, then ``--``, then the script's arguments (:func:`parse_split_args`).
 Bad input is one line ``<tool>.py: error: <message>`` on stderr and exit status 2 (:class:`UsageError`,
-:func:`print_error`).
+:func:`print_error`). With ``--track`` a tool passes the scripts' W&B flags to every run it starts, all of one
+study in one W&B group (:func:`add_tracking_options`, :func:`tracking_flags`).
 
 The four scripts do not import this module: each stays one self-contained file with its own copies of the
 few lines it needs (its ``UsageError``, its atomic write).
@@ -17,16 +18,24 @@ few lines it needs (its ``UsageError``, its atomic write).
 
 import argparse
 import contextlib
+import importlib.util
 import io
 import json
+import netrc
 import os
 import shutil
 import subprocess
 import sys
+import urllib.parse
 from typing import Callable, Literal, Optional, TextIO
 
 OWNED_FLAGS = ("--no-ultho", "--run-name", "--runs-dir", "--resume", "--init-from")
 """Script flags the tools set themselves; a user passing one would break the resume logic."""
+
+TRACKING_FLAGS = ("--track", "--wandb-project-name", "--wandb-entity", "--wandb-group")
+"""The scripts' W&B flags: a tool sets them itself on every run it starts, so that a study's runs share a group."""
+WANDB_NAME_FORBIDDEN = "/\\#?%:"
+"""Characters W&B refuses in a project, entity or group name (the scripts' own check)."""
 
 RunState = Literal["done", "resumable", "fresh"]
 
@@ -108,6 +117,72 @@ def script_command(script_path: str, args: list[str], run_dir: str, resume: bool
     place = ["--resume", run_dir] if resume else ["--runs-dir", os.path.dirname(run_dir) or ".",
                                                   "--run-name", os.path.basename(run_dir)]
     return [sys.executable, script_path, *args, *place]
+
+
+# ---------------------------------------------------------------------- W&B tracking
+def add_tracking_options(parser: argparse.ArgumentParser, runs: str, group: str) -> None:
+    """The tools' --track, --wandb-project-name, --wandb-entity and --wandb-group: the scripts' flags, which the
+    tool passes on. ``runs``: what the tool starts, for the help; ``group``: the default W&B group, for the help."""
+    tracking = parser.add_argument_group("tracking (Weights & Biases)")
+    tracking.add_argument("--track", action="store_true",
+                          help=f"mirror {runs} to Weights & Biases (config, code, every TensorBoard scalar), all in "
+                               "one W&B group; needs `wandb login`, or WANDB_MODE=offline to log locally for "
+                               "`wandb sync` later")
+    tracking.add_argument("--wandb-project-name", default="ultho", metavar="NAME",
+                          help="the W&B project of --track (default: ultho)")
+    tracking.add_argument("--wandb-entity", metavar="NAME",
+                          help="the W&B team or user of --track (default: your W&B default entity)")
+    tracking.add_argument("--wandb-group", metavar="NAME", help=f"the W&B group of --track (default: {group})")
+
+
+def tracking_flags(args: argparse.Namespace, script_args: list[str], default_group: str,
+                   check_login: bool = True) -> list[str]:
+    """The script flags that put every run the tool starts in W&B, in ``args.wandb_group`` or else
+    ``default_group`` (the study's folder name); [] without --track. Refuses the W&B flags after -- (the tool
+    sets them), names W&B would refuse, and with ``check_login`` a machine where W&B has no key: each run would
+    exit 2, so nothing is started."""
+    for token in script_args:
+        for flag in TRACKING_FLAGS:
+            if token == flag or token.startswith(flag + "="):
+                raise UsageError(f"{flag} after --: put --track and the --wandb-* options before --; the tool passes "
+                                 "them to every run it starts, with one W&B group")
+    if not args.track:
+        if args.wandb_entity is not None or args.wandb_group is not None:
+            raise UsageError("--wandb-entity and --wandb-group name where --track logs: add --track")
+        return []
+    group = args.wandb_group if args.wandb_group is not None else default_group
+    rule = "W&B names are 1 to 128 characters without / \\ # ? % :"
+    for flag, name in (("--wandb-project-name", args.wandb_project_name), ("--wandb-entity", args.wandb_entity),
+                       ("--wandb-group", args.wandb_group)):
+        if name is not None and not is_wandb_name(name):
+            raise UsageError(f"{flag} {name!r}: {rule}")
+    if not is_wandb_name(group):
+        raise UsageError(f"the W&B group is by default the folder's name, {group!r}, which W&B refuses ({rule}); "
+                         "give --wandb-group NAME")
+    if importlib.util.find_spec("wandb") is None:
+        raise UsageError("--track needs the wandb package: pip install -r requirements.txt")
+    if check_login and os.environ.get("WANDB_MODE", "").lower() not in ("offline", "disabled", "dryrun") \
+            and not wandb_logged_in():
+        raise UsageError("--track: no W&B login on this machine: run `wandb login`, or set WANDB_MODE=offline to "
+                         "log locally and `wandb sync` the runs later")
+    entity = ["--wandb-entity", args.wandb_entity] if args.wandb_entity is not None else []
+    return ["--track", "--wandb-project-name", args.wandb_project_name, *entity, "--wandb-group", group]
+
+
+def is_wandb_name(name: str) -> bool:
+    return 0 < len(name) <= 128 and not set(name) & set(WANDB_NAME_FORBIDDEN)
+
+
+def wandb_logged_in() -> bool:
+    """Whether W&B finds an API key: WANDB_API_KEY, or the netrc entry `wandb login` writes for its host (the
+    scripts' own test, so that the tool refuses exactly what its runs would)."""
+    if os.environ.get("WANDB_API_KEY"):
+        return True
+    host = urllib.parse.urlparse(os.environ.get("WANDB_BASE_URL", "https://api.wandb.ai")).hostname
+    try:
+        return netrc.netrc(os.environ.get("NETRC")).authenticators(host) is not None
+    except (OSError, netrc.NetrcParseError):
+        return False
 
 
 # ---------------------------------------------------------------------- run directories

@@ -10,7 +10,8 @@ import time
 import pytest
 import torch
 
-from helpers import REPO, files_under, run, run_concurrently, run_ok, scalars, summary
+import hpo_baselines
+from helpers import REPO, files_under, run, run_concurrently, run_ok, scalars, summary, without_wandb_login
 from hpo_study import FLAGS, SCRIPT, SCRIPT_ARGS, SPACE, STEP, STUDY_FIELDS, TOOL, study
 
 
@@ -256,6 +257,46 @@ def test_a_diverged_trial_keeps_its_last_score_and_the_population_in_step(tmp_pa
     assert record["best_trial"] == "trial_0" and record["best_final_score"] == healthy["final_score"]
 
 
+
+def segment_commands(study_dir, *tool_args: str) -> tuple[list[str], list[str]]:
+    """The first and the last segment command of trial_1 in a two-segment study of these options (nothing runs)."""
+    args, script_args = hpo_baselines.parse_args([SCRIPT, "--method", "pbt", "--population", "2", "--interval",
+                                                  str(2 * STEP), "--study-dir", str(study_dir), *tool_args, "--",
+                                                  *SCRIPT_ARGS, "--total-timesteps", str(4 * STEP)])
+    plan = hpo_baselines.checked_plan(args, script_args, str(study_dir))
+    settings = plan.settings_of({"learning_rate": 1e-3, "minibatch_size": 64, "vf_coef": 0.5})
+    return (plan.segment_command("trial_1", 1001, 2 * STEP, settings, None),
+            plan.segment_command("trial_1", 1001, 4 * STEP, settings, str(study_dir / "trials" / "trial_1")))
+
+
+def test_track_gives_every_segment_the_wandb_flags_with_the_study_as_its_group(tmp_path, monkeypatch):
+    """A trial is one W&B run across its segments (the script keeps its W&B id in the trial's run directory); all
+    trials of a study share the group: the study directory's name, or --wandb-group (sweep.py gives its own)."""
+    monkeypatch.setenv("WANDB_MODE", "offline")
+    study_dir = tmp_path / "pbt-doorkey"
+    plain = segment_commands(study_dir)
+    tracked = segment_commands(study_dir, "--track", "--wandb-project-name", "proj", "--wandb-entity", "team")
+    flags = ["--track", "--wandb-project-name", "proj", "--wandb-entity", "team", "--wandb-group", "pbt-doorkey"]
+    for without, with_ in zip(plain, tracked):
+        assert with_ == without + flags and without[-1] == "--quiet"
+    grouped = segment_commands(study_dir, "--track", "--wandb-group", "my-sweep")
+    assert all(c[-6:] == ["--quiet", "--track", "--wandb-project-name", "ultho", "--wandb-group", "my-sweep"]
+               for c in grouped)
+    assert not study_dir.exists()
+
+
+def test_track_without_a_wandb_login_exits_2_before_ray_starts(tmp_path):
+    study_dir = tmp_path / "study"
+    result = subprocess.run([sys.executable, os.path.join(REPO, TOOL), SCRIPT, "--method", "pbt", "--population", "2",
+                             "--study-dir", str(study_dir), "--track", "--", *SCRIPT_ARGS],
+                            capture_output=True, text=True, cwd=REPO, env=without_wandb_login(tmp_path))
+    assert result.returncode == 2 and result.stdout == ""
+    assert result.stderr.strip().splitlines() == [
+        f"{TOOL}: error: --track: no W&B login on this machine: run `wandb login`, or set WANDB_MODE=offline to log "
+        "locally and `wandb sync` the runs later"]
+    assert not study_dir.exists()
+
+
 BAD_INPUTS = [
     (["--method", "hyperband"], "--method hyperband: not one of pbt, pb2, random"),
     (["--method", "pbt", "--population", "1"], "--population must be >= 2 for pbt"),
@@ -275,6 +316,15 @@ BAD_INPUTS = [
     (["--method", "pbt", "--population", "4", "--bogus"], "unrecognized arguments: --bogus"),
     (["--method", "pbt", "--population", "4", "--num-cpus", "2", "--ray-address", "127.0.0.1:1"],
      "--num-cpus 2: it sizes the local Ray instance"),
+    (["--method", "pbt", "--population", "4", "--wandb-entity", "team"],
+     "--wandb-entity and --wandb-group name where --track logs: add --track"),
+    (["--method", "pbt", "--population", "4", "--wandb-group", "g"], "add --track"),
+    (["--method", "pbt", "--population", "4", "--track", "--wandb-group", "a%b"],
+     "--wandb-group 'a%b': W&B names are 1 to 128 characters"),
+    (["--method", "pbt", "--population", "4", "--", "--track"],
+     "--track after --: put --track and the --wandb-* options before --"),
+    (["--method", "pbt", "--population", "4", "--track", "--", "--wandb-project-name", "p"],
+     "--wandb-project-name after --"),
 ]
 
 

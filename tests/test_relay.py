@@ -1,5 +1,6 @@
 """relay_ultho.py end to end on MiniGrid with tiny budgets: a relay killed in its COI run and started again."""
 
+import argparse
 import json
 import os
 import signal
@@ -9,9 +10,9 @@ import time
 
 import pytest
 
-from helpers import REPO, files_under, run, run_concurrently, summary
+from helpers import REPO, files_under, run, run_concurrently, summary, without_wandb_login
 from relay_ultho import default_relay_dir
-from ultho_runs import flag_values, without_flag
+from ultho_runs import UsageError, add_tracking_options, flag_values, tracking_flags, without_flag
 
 TOOL = "relay_ultho.py"
 SCRIPT = "ppo_ultho_minigrid.py"
@@ -21,6 +22,7 @@ SCRIPT = "ppo_ultho_minigrid.py"
 TINY = ["--env-id", "MiniGrid-Empty-5x5-v0", "--num-envs", "4", "--num-steps", "64", "--total-timesteps", "4096",
         "--minibatch-size", "64", "--ultho-clusters", "learning_rate", "minibatch_size=32,64,128",
         "--checkpoint-every", "1", "--eval-episodes", "0", "--seed", "3"]
+
 
 
 def summary_of(path) -> dict:
@@ -171,6 +173,62 @@ def test_a_run_that_diverged_is_done_and_loses_to_one_that_did_not(tmp_path):
     assert f"scored {coi['final_score']} (diverged at step 512)" in result.stdout
 
 
+def test_a_tracked_relay_starts_its_three_runs_with_the_wandb_flags_in_one_group(tmp_path):
+    # Two iterations: one credited selection is enough for a COI and a NOI. W&B is disabled: what is checked is
+    # the command lines and what the runs made of them (tests/test_sweep.py reads back a tracked run's W&B records).
+    relay_dir = tmp_path / "doorkey-relay"
+    two_iterations = without_flag(TINY, "--total-timesteps") + ["--total-timesteps", "512", "--quiet"]
+    result = run(TOOL, SCRIPT, "--relay-dir", f"{relay_dir}{os.sep}", "--track", "--wandb-project-name", "proj",
+                 "--wandb-entity", "team", "--", *two_iterations, env={"WANDB_MODE": "disabled"})
+    assert result.returncode == 0, result.stdout + result.stderr
+    flags = " --track --wandb-project-name proj --wandb-entity team --wandb-group doorkey-relay "
+    started = [line for line in result.stdout.splitlines() if line.startswith("starting ")]
+    assert len(started) == 3 and all(line.count(flags) == 1 for line in started), started
+    for role in ("full", "coi", "noi"):
+        settings = summary(str(relay_dir / role))["settings"]
+        assert (settings["track"], settings["wandb_group"], settings["wandb_entity"]) == (True, "doorkey-relay", "team")
+        assert (relay_dir / role / "wandb_id").exists()
+    assert summary_of(relay_dir / "relay.json")["script_args"] == two_iterations  # the flags are not the relay's
+
+
+def tracking_options(*argv: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    add_tracking_options(parser, "the runs", "the folder's name")
+    return parser.parse_args(argv)
+
+
+def test_tracking_flags_are_the_scripts_with_the_group_given_or_else_the_folders(monkeypatch):
+    monkeypatch.setenv("WANDB_MODE", "offline")
+    assert tracking_flags(tracking_options(), [], "folder") == []
+    assert tracking_flags(tracking_options("--track"), [], "folder") == [
+        "--track", "--wandb-project-name", "ultho", "--wandb-group", "folder"]
+    assert tracking_flags(tracking_options("--track", "--wandb-entity", "team", "--wandb-group", "sweep"), [],
+                          "folder") == ["--track", "--wandb-project-name", "ultho", "--wandb-entity", "team",
+                                        "--wandb-group", "sweep"]
+    assert tracking_flags(tracking_options("--track", "--wandb-group", "g" * 128), [], "f")[-1] == "g" * 128
+
+
+@pytest.mark.parametrize("name", ["", "g" * 129, "a/b", "a\\b", "a#b", "a?b", "a%b", "a:b"])
+def test_tracking_flags_refuse_a_name_wandb_refuses(monkeypatch, name):
+    monkeypatch.setenv("WANDB_MODE", "offline")
+    for flag in ("--wandb-project-name", "--wandb-entity", "--wandb-group"):
+        with pytest.raises(UsageError, match=f"^{flag} .*: W&B names are 1 to 128 characters"):
+            tracking_flags(tracking_options("--track", flag, name), [], "folder")
+    with pytest.raises(UsageError, match="W&B group is by default the folder's name.*give --wandb-group NAME$"):
+        tracking_flags(tracking_options("--track"), [], name)
+
+
+def test_track_without_a_wandb_login_exits_2_before_any_run_starts(tmp_path):
+    relay_dir = tmp_path / "r"
+    result = subprocess.run([sys.executable, os.path.join(REPO, TOOL), SCRIPT, "--relay-dir", str(relay_dir), "--track",
+                             "--", *TINY], capture_output=True, text=True, cwd=REPO, env=without_wandb_login(tmp_path))
+    assert result.returncode == 2 and result.stdout == ""
+    assert result.stderr.strip().splitlines() == [
+        f"{TOOL}: error: --track: no W&B login on this machine: run `wandb login`, or set WANDB_MODE=offline to log "
+        "locally and `wandb sync` the runs later"]
+    assert not relay_dir.exists()
+
+
 BAD_INPUTS = [
     ([SCRIPT, "--", "--no-ultho"], "--no-ultho is set by the tool itself"),
     ([SCRIPT, "--", "--run-name", "x"], "--run-name is set by the tool itself"),
@@ -185,6 +243,11 @@ BAD_INPUTS = [
     ([SCRIPT, "--bogus"], "unrecognized arguments: --bogus"),
     ([SCRIPT, "--", "--env-id", "CartPole-v1"], "CartPole-v1"),  # the script's own check, through the relay
     ([], "the following arguments are required: script"),
+    ([SCRIPT, "--wandb-entity", "team"], "--wandb-entity and --wandb-group name where --track logs: add --track"),
+    ([SCRIPT, "--wandb-group", "g"], "add --track"),
+    ([SCRIPT, "--track", "--wandb-project-name", "a/b"], "--wandb-project-name 'a/b': W&B names are 1 to 128"),
+    ([SCRIPT, "--", "--track"], "--track after --: put --track and the --wandb-* options before --"),
+    ([SCRIPT, "--track", "--", "--wandb-entity", "team"], "--wandb-entity after --"),
 ]
 
 

@@ -12,7 +12,8 @@ import time
 
 import pytest
 
-from helpers import REPO, files_under, run, run_concurrently, summary
+from helpers import (REPO, files_under, run, run_concurrently, summary, wandb_history, wandb_offline_runs,
+                     without_wandb_login)
 
 TOOL = "sweep.py"
 SCRIPT = "ppo_ultho_minigrid.py"
@@ -23,6 +24,7 @@ TINY = ["--scripts", SCRIPT, "--env-ids", "MiniGrid-Empty-5x5-v0", "--total-time
         "--eval-episodes", "0"]
 RUN_FIELDS = {"name", "script", "benchmark", "env_id", "method", "c", "window", "variant", "settings", "seed", "path",
               "status", "attempts", "error"}
+
 
 
 def index(out) -> dict:
@@ -142,6 +144,48 @@ def test_hpo_methods_are_studies_of_the_population_in_the_dry_run(tmp_path):
         assert all(" -- --env-id MiniGrid-" in c and c.endswith("--total-timesteps 500000") for c in studies)
     # PPO is one run of the budget per environment, each study three.
     assert f"12 runs, {3 * (1 + 3 * 3) * 500_000:,} environment steps" in result.stderr
+
+
+def test_track_adds_the_wandb_flags_to_every_command_and_nothing_else(tmp_path):
+    """Each run, relay and study gets the W&B flags with the sweep directory's name as its group (a relay and a study
+    before --, to their tool); otherwise the commands are those of the same sweep untracked. A dry run needs no
+    W&B login."""
+    out = tmp_path / "paper-grid"
+    grid = ["--paper", "minigrid", "--env-ids", "MiniGrid-DoorKey-6x6-v0", "--methods", "ppo", "ultho", "relay", "pbt",
+            "--seeds", "1", "--points", "5:10", "--population", "2", "--ray-address", "10.0.0.1:6379", "--dry-run",
+            "--out", str(out)]
+    tracked = subprocess.run([sys.executable, os.path.join(REPO, TOOL), *grid, "--track", "--wandb-project-name",
+                              "proj", "--wandb-entity", "team"], capture_output=True, text=True, cwd=REPO,
+                             env=without_wandb_login(tmp_path))
+    plain = run(TOOL, *grid)
+    assert tracked.returncode == plain.returncode == 0, tracked.stderr
+    flags = " --track --wandb-project-name proj --wandb-entity team --wandb-group paper-grid"
+    commands = tracked.stdout.strip().splitlines()
+    assert len(commands) == 4 and all(c.count(flags) == 1 for c in commands)
+    assert all(c.index(flags) < c.index(" -- ") for c in commands if " -- " in c)  # the relay's and the study's
+    assert [c.replace(flags, "") for c in commands] == plain.stdout.strip().splitlines()
+    assert tracked.stderr == plain.stderr and not out.exists()
+
+
+def test_tracked_sweep_mirrors_each_run_to_wandb_in_the_sweeps_group(tmp_path):
+    out, wandb_dir = tmp_path / "tracked-sweep", tmp_path / "wandb"
+    wandb_dir.mkdir()
+    result = run(TOOL, "--methods", "ppo", "ultho", "--workers", "2", "--out", str(out), "--track",
+                 "--wandb-project-name", "ultho-tests", *TINY,
+                 env={"WANDB_MODE": "offline", "WANDB_DIR": str(wandb_dir), "WANDB_SILENT": "true"})
+    assert result.returncode == 0, result.stdout + result.stderr
+    runs = index(out)["runs"]
+    assert [(r["method"], r["status"]) for r in runs] == [("ppo", "done"), ("ultho", "done")]
+    offline = wandb_offline_runs(wandb_dir)
+    ids = {r["name"]: (out / r["path"] / "wandb_id").read_text().strip() for r in runs}
+    assert sorted(offline) == sorted(ids.values())
+    for name, run_id in ids.items():
+        [start] = [r.run for r in offline[run_id] if r.WhichOneof("record_type") == "run"]
+        assert (start.display_name, start.project, start.run_group) == (name, "ultho-tests", "tracked-sweep")
+        config = {item.key: json.loads(item.value_json) for item in start.config.update}
+        assert config["env_id"] == "MiniGrid-Empty-5x5-v0" and config["total_timesteps"] == 512
+        history = wandb_history(offline[run_id])
+        assert [step for step, _ in history["charts/SPS"]] == [256, 512], name
 
 
 def test_sweep_runs_a_pbt_study_and_indexes_it(tmp_path):
@@ -331,10 +375,12 @@ def ray_head():
     temp_dir = tempfile.mkdtemp(prefix="ray", dir="/tmp")  # short: Ray's socket paths must fit in 107 bytes
     port = free_port()
     ray = os.path.join(os.path.dirname(sys.executable), "ray")
+    # Its workers run the scripts in its environment, where W&B is disabled for the tracked sweep's runs.
     process = subprocess.Popen([ray, "start", "--head", "--block", "--port", str(port), "--num-cpus", "2",
                                 "--disable-usage-stats", "--include-dashboard=false", "--temp-dir", temp_dir,
                                 "--ray-client-server-port", str(free_port())],
-                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
+                               env={**os.environ, "WANDB_MODE": "disabled"})
     try:
         for line in process.stdout:
             if "Ray runtime started" in line:
@@ -351,6 +397,20 @@ def ray_head():
             time.sleep(2)
         process.wait()
         shutil.rmtree(temp_dir, ignore_errors=True)
+
+
+def test_a_tracked_sweep_through_ray_passes_the_wandb_flags_to_its_tasks(ray_head, tmp_path):
+    """The run, a Ray task on the instance's worker, was started with the flags: it kept a W&B id and its summary
+    names the group. (W&B is disabled on the instance: its nodes, not the driver, decide how W&B logs.)"""
+    address, _ = ray_head
+    out = tmp_path / "ray-sweep"
+    result = run(TOOL, "--methods", "ppo", "--ray-address", address, "--out", str(out), "--track", *TINY,
+                 env={"WANDB_MODE": "disabled"})
+    assert result.returncode == 0, result.stdout + result.stderr
+    [record] = index(out)["runs"]
+    assert record["status"] == "done" and (out / record["path"] / "wandb_id").exists()
+    settings = summary(str(out / record["path"]))["settings"]
+    assert (settings["track"], settings["wandb_project_name"], settings["wandb_group"]) == (True, "ultho", "ray-sweep")
 
 
 def test_sweep_through_a_real_ray_instance(ray_head, tmp_path):
@@ -389,6 +449,15 @@ BAD_INPUTS = [
     (["--paper", "minigrid", "--", "--resume", "x"], "--resume after -- is set by the grid"),
     (["--paper", "minigrid", "--", "--init-from", "x"], "--init-from after -- is set by the grid"),
     (["--paper", "minigrid", "--done-from", "no/such/dir"], "--done-from no/such/dir: no such directory"),
+    (["--paper", "minigrid", "--wandb-entity", "team"], "--wandb-entity and --wandb-group name where --track logs: "
+                                                        "add --track"),
+    (["--paper", "minigrid", "--wandb-group", "g"], "add --track"),
+    (["--paper", "minigrid", "--track", "--wandb-project-name", ""], "--wandb-project-name '': W&B names are 1 to 128 "
+                                                                    "characters without / \\ # ? % :"),
+    (["--paper", "minigrid", "--track", "--wandb-entity", "t" * 129], "--wandb-entity 'ttt"),
+    (["--paper", "minigrid", "--track", "--wandb-group", "a:b"], "--wandb-group 'a:b': W&B names"),
+    (["--paper", "minigrid", "--", "--track"], "--track after --: put --track and the --wandb-* options before --"),
+    (["--paper", "minigrid", "--track", "--", "--wandb-group=g"], "--wandb-group after --"),
 ]
 
 
@@ -408,7 +477,20 @@ def test_bad_input_exits_2_with_one_line_and_writes_nothing(bad_input_results, c
     assert not out.exists()
 
 
+def test_track_without_a_wandb_login_exits_2_before_any_run_starts(tmp_path):
+    out = tmp_path / "s"
+    result = subprocess.run([sys.executable, os.path.join(REPO, TOOL), "--methods", "ppo", "--out", str(out), "--track",
+                             *TINY], capture_output=True, text=True, cwd=REPO, env=without_wandb_login(tmp_path))
+    assert result.returncode == 2 and result.stdout == ""
+    assert result.stderr.strip().splitlines() == [
+        f"{TOOL}: error: --track: no W&B login on this machine: run `wandb login`, or set WANDB_MODE=offline to log "
+        "locally and `wandb sync` the runs later"]
+    assert not out.exists()
+
+
 def test_help_reads_well():
     result = run(TOOL, "--help")
     assert result.returncode == 0
     assert "python sweep.py --paper minigrid --dry-run" in result.stdout and "--ray-address" in result.stdout
+    assert "--wandb-project-name NAME" in result.stdout and "(default: the name of the --out directory)" in \
+        " ".join(result.stdout.split())
