@@ -15,8 +15,11 @@ SCORES = {1e-3: (0.5, 0.7), 2.5e-3: (0.8, 0.6), 5e-3: (0.1, 0.3)}  # learning ra
 
 def made_study(tmp_path):
     runs = [Run(f"ppo{lr}{seed}", "minigrid", "E", "ppo", None, None, seed, 500_000, score,
-                settings={"learning_rate": lr, "seed": seed, "minibatch_size": 256})
+                settings={"learning_rate": lr, "seed": seed, "minibatch_size": 256}, grid=True)
             for lr, scores in SCORES.items() for seed, score in zip((1, 2), scores)]
+    # Fixed PPO at the defaults outside the grid (the report's baseline runs): a method placed among the settings.
+    runs += [Run("ppo-defaults", "minigrid", "E", "ppo", None, None, 3, 500_000, 0.62,
+                 settings={"learning_rate": 1e-3, "seed": 3, "minibatch_size": 256})]
     held = np.array([[1, 2.5e-3], [2, 2.5e-3], [3, 1e-3]])  # hparams/learning_rate: (step, value)
     runs += [Run(f"ultho{seed}", "minigrid", "E", "ultho", 5.0, 10, seed, 500_000, score,
                  search_space={"learning_rate": list(SCORES)}, series={"hparams/learning_rate": held})
@@ -48,12 +51,14 @@ def test_the_settings_ranked_and_each_method_placed_among_them_by_hand(tmp_path)
     # 0.7: percentile 83; +0.1 over the median and the defaults, level with the best; one run a seed; both runs
     # held 2.5e-3 longest, the best setting.
     assert row == "| ULTHO (c=5, W=10) | 0.700 | 83 | +0.1 | +0.1 | +0 | 1 | 1, 1 |"
+    # 0.62: above 0.6 and 0.2 (67), 0.02 over the median and the defaults' grid runs, 0.08 under the best.
+    assert "| PPO | 0.620 | 67 | +0.02 | +0.02 | -0.08 | 1 | – |" in lines
     assert os.path.exists(tmp_path / "landscape_minigrid_E.png")
 
 
 def test_one_setting_is_no_landscape(tmp_path):
     study = made_study(tmp_path)
-    study.runs = [r for r in study.runs if r.kind != "ppo" or r.settings["learning_rate"] == 1e-3]
+    study.runs = [r for r in study.runs if not r.grid or r.settings["learning_rate"] == 1e-3]
     assert landscapes(study.runs) == {}
     assert landscape_section(study.runs, "minigrid", str(tmp_path), str) == []
 
@@ -72,3 +77,5 @@ def test_a_real_tiny_grid_draws_its_landscape(tmp_path):
     assert "landscape_minigrid_MiniGrid_Empty_5x5_v0.png" in text
     assert (tmp_path / "report" / "landscape_minigrid_MiniGrid_Empty_5x5_v0.png").exists()
     assert "| ULTHO (c=5, W=10) |" in text
+    # The grid's runs are in that section alone: the report's other tables and curves have ULTHO only.
+    assert "| PPO" not in text.split("### The landscape of fixed settings")[0]

@@ -1,7 +1,8 @@
 """The landscape of fixed settings: where each method stands among every fixed setting a grid search would try.
 
-A benchmark's fixed-settings runs form a grid when they differ in their settings (``sweep.py --methods grid``
-runs every combination of a search space's values with ``--no-ultho``). For each environment with two or more
+A benchmark's grid is the runs a sweep.json lists as ``--methods grid`` (``sweep.py`` runs every combination of a
+search space's values with ``--no-ultho``); every other run, the defaults' fixed-settings runs included, is a
+method placed among its settings. For each environment with two or more
 settings, the section ranks them by final score and by the area under the learning curve, draws them sorted with
 the other methods' scores across, and places each other method among them: its percentile, its score against
 the grid's median (what a setting picked at random gets), the script's defaults and the best setting, and its
@@ -47,7 +48,7 @@ class Setting:
 
 def grid_keys(runs: list[Run]) -> list[str]:
     """The settings on which a benchmark's fixed-settings runs differ, in the order of their runs' settings."""
-    fixed = [r for r in runs if r.kind == "ppo"]
+    fixed = [r for r in runs if r.grid]
     keys: list[str] = []
     for run in fixed:
         for key, value in run.settings.items():
@@ -62,9 +63,9 @@ def landscapes(runs: list[Run]) -> dict[str, list[Setting]]:
     found: dict[str, list[Setting]] = {}
     if not keys:
         return found
-    for env in sorted({r.env_id for r in runs if r.kind == "ppo"}):
+    for env in sorted({r.env_id for r in runs if r.grid}):
         settings: dict[tuple, Setting] = {}
-        for run in (r for r in runs if r.kind == "ppo" and r.env_id == env and r.raw_score is not None):
+        for run in (r for r in runs if r.grid and r.env_id == env and r.raw_score is not None):
             values = {key: run.settings.get(key) for key in keys}
             settings.setdefault(tuple(values.values()), Setting(values, [])).runs.append(run)
         if len(settings) >= 2:
@@ -174,7 +175,7 @@ def landscape_section(runs: list[Run], benchmark: str, out: str, number) -> list
     for env, grid in found.items():
         defaults = defaults_of(grid, benchmark)
         median = float(np.median([s.final for s in grid]))
-        others = [r for r in runs if r.env_id == env and r.kind != "ppo" and r.raw_score is not None]
+        others = [r for r in runs if r.env_id == env and not r.grid and r.raw_score is not None]
         labels = list(dict.fromkeys(r.label for r in others))
         marks = {label: float(np.mean([r.raw_score for r in others if r.label == label])) for label in labels}
         area_marks = {}

@@ -85,6 +85,7 @@ class Run:
     label: str = ""  # the method, set by Study.label_methods
     narrowed: bool = False  # ULTHO on a search space other than its benchmark's widest (set with the label)
     diverged: dict | None = None  # where the scored run's loss became non-finite (summary.json's "diverged")
+    grid: bool = False  # one of a sweep's fixed settings (--methods grid): only the landscape section shows it
 
 
 def finished_on_disk(run_dir: str, method: str) -> bool:
@@ -104,6 +105,7 @@ class Study:
 
     def __init__(self) -> None:
         self.runs: list[Run] = []
+        self.grid_runs: set[str] = set()  # real paths of the runs a sweep.json lists as its grid of fixed settings
         self.warnings: list[str] = []
         self.missing: list[str] = []
         self.absent: list[str] = []  # runs that a sweep, relay or study refers to and that are not there
@@ -248,6 +250,8 @@ class Study:
                 else:
                     kind = entry["method"]
                     (relays if kind == "relay" else studies if kind in HPO_METHODS else runs).append(where)
+                    if kind == "grid":
+                        self.grid_runs.add(os.path.realpath(where))
         except (KeyError, TypeError, ValueError) as err:
             self.warn(path, f"not in the sweep.json format ({err.__class__.__name__}: {err}); its index is skipped")
         return relays, studies, runs
@@ -366,6 +370,7 @@ class Study:
             utility=str(bandit.get("utility", "value")) if bandit else "value",
             settings=summary.get("settings") or {},
             diverged=diverged_of(summary),
+            grid=os.path.realpath(run_dir) in self.grid_runs,
         ))
 
     # ------------------------------------------------------------------ scores and methods
@@ -414,14 +419,17 @@ class Study:
 
 
 NOT_SETTINGS = ("seed", "env_id", "run_name", "exp_name", "runs_dir", "resume", "init_from", "quiet",
-                "total_timesteps")
-"""Fields of a run's settings that say which run it is, not how it learns: never named in a method's label."""
+                "total_timesteps", "track", "wandb_project_name", "wandb_entity", "wandb_group", "capture_video",
+                "video_every", "evaluate")
+"""Fields of a run's settings that say which run it is or what it records, not how it learns: never named in a
+method's label."""
 
 
 def fixed_settings_text(run: Run, runs: list[Run]) -> str:
     """", update_epochs=5" for a fixed-settings run whose settings differ from its script's defaults, naming only
-    the settings on which the benchmark's fixed-settings runs disagree (so one set of runs keeps the plain name)."""
-    peers = [r for r in runs if r.kind == run.kind and r.benchmark == run.benchmark]
+    the settings on which the benchmark's fixed-settings runs disagree (so one set of runs keeps the plain name); a
+    grid's runs are named among themselves, the others among the others."""
+    peers = [r for r in runs if r.kind == run.kind and r.benchmark == run.benchmark and r.grid == run.grid]
     defaults = script_defaults(run.benchmark)
     named = []
     for key, value in run.settings.items():

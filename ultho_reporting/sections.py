@@ -77,7 +77,8 @@ def budget_text(runs: list[Run]) -> str:
 # ---------------------------------------------------------------------- one benchmark
 def benchmark_section(study: Study, benchmark: str, options: Options) -> tuple[list[str], list[dict]]:
     """The part of report.md on one benchmark, and its rows of aggregate.csv."""
-    runs = [r for r in study.runs if r.benchmark == benchmark]
+    with_grid = [r for r in study.runs if r.benchmark == benchmark]
+    runs = [r for r in with_grid if not r.grid]  # a sweep's grid of fixed settings has a section of its own
     methods = method_order(runs)
     styles = method_styles(runs)
     lines = [f"## {BENCHMARKS[benchmark]}", ""]
@@ -90,7 +91,7 @@ def benchmark_section(study: Study, benchmark: str, options: Options) -> tuple[l
     lines += decisions_section(runs, benchmark, methods, study.runs, options)
     lines += robustness_section(runs, benchmark, study.grid, options)
     lines += protocol_section(runs, benchmark, options.seed, options.reps)
-    lines += landscape_section(runs, benchmark, options.out, number)
+    lines += landscape_section(with_grid, benchmark, options.out, number)
     return lines, rows
 
 
