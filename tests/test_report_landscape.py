@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from helpers import run
-from ultho_reporting.landscape import best_chosen_on_other_seeds, landscape_section, landscapes, percentile
+from ultho_reporting.landscape import (best_chosen_on_other_seeds, failing, gains_with_intervals, landscape_section,
+                                      landscapes, percentile)
 from ultho_reporting.runs import Run, Study
 
 SCORES = {1e-3: (0.5, 0.7), 2.5e-3: (0.8, 0.6), 5e-3: (0.1, 0.3)}  # learning rate: final scores of seeds 1 and 2
@@ -42,11 +43,24 @@ def test_the_settings_ranked_and_each_method_placed_among_them_by_hand(tmp_path)
     # Seed 1 held out: seed 2 picks 1e-3 (0.7 > 0.6), which scores 0.5 on seed 1; seed 2 held out: seed 1 picks
     # 2.5e-3 (0.8), which scores 0.6 on seed 2. A grid search could expect (0.5 + 0.6) / 2.
     assert best_chosen_on_other_seeds(grid) == pytest.approx(0.55)
+    # Means 0.7 (best), 0.6 (defaults, also the median): +0.1, 0, +0.1. Resampled, 1e-3's mean is 0.5, 0.6 or 0.7,
+    # 2.5e-3's 0.6, 0.7 or 0.8, and 5e-3's (at most 0.3) is always the lowest, so the median is the smaller of the
+    # other two: best - defaults = max(0, m(2.5e-3) - m(1e-3)) lies in [0, 0.3], defaults - median =
+    # max(0, m(1e-3) - m(2.5e-3)) in [0, 0.1], best - median = |m(1e-3) - m(2.5e-3)| in [0, 0.3].
+    gains = gains_with_intervals(grid, grid[1], seed=0, reps=2000)
+    assert [name for name in gains] == ["best − defaults", "defaults − median", "best − median"]
+    for (name, (point, low, high)), (expected, floor, ceiling) in zip(gains.items(), [(0.1, 0, 0.3), (0, 0, 0.1),
+                                                                                       (0.1, 0, 0.3)]):
+        assert point == pytest.approx(expected) and floor - 1e-9 <= low <= point <= high <= ceiling + 1e-9, name
+    # 5e-3's seed 1 (0.1) is below half the best mean (0.35): a failed run.
+    assert [s.values["learning_rate"] for s in failing(grid)] == [5e-3]
     lines = landscape_section(study.runs, "minigrid", str(tmp_path), lambda v: f"{v:.3f}")
     text = "\n".join(lines)
     assert "3 settings; best 0.700 (0.0025), median 0.600, worst 0.200 (0.005)" in text
     assert "the defaults (0.001) rank 2 of 3 at 0.600" in text
     assert "the best setting chosen on the other seeds scores 0.550" in text
+    assert "best − defaults +0.1 [" in text and "Settings with a failed seed (below half the best mean): 0.005 " \
+        "(0.100, 0.300)" in text
     row = next(line for line in lines if line.startswith("| ULTHO (c=5, W=10) |"))
     # 0.7: percentile 83; +0.1 over the median and the defaults, level with the best; one run a seed; both runs
     # held 2.5e-3 longest, the best setting.

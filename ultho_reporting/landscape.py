@@ -121,44 +121,77 @@ def rank_of(values: tuple, grid: list[Setting]) -> int | None:
     return None
 
 
-def landscape_figure(env: str, grid: list[Setting], marks: dict[str, float], area_marks: dict[str, float],
+def landscape_figure(env: str, grid: list[Setting], methods: dict[str, tuple[list[float], list[float]]],
                      defaults: Setting | None, benchmark: str, out: str) -> str:
-    """Every setting's mean final score (dot) and its seeds' range (bar), sorted, the defaults in red; beside it the
-    same for the area under the curve; the other methods as vertical lines at their mean."""
-    panels = [("final score", lambda s: s.final, lambda s: list(s.finals.values()))]
+    """One row per fixed setting (grey dot: its mean over seeds, bar: their range; the defaults in red) and per
+    other method of the report (blue diamond and bar, named in bold), all sorted by their mean, so a method's row
+    shows where it falls among the settings; a panel by final score and one by area under the curve. ``methods``:
+    {label: (its runs' final scores, their areas)}. The axis starts just below the lowest mean: a failed seed's
+    bar can run off its left edge."""
+    panels = [("final score", lambda s: list(s.finals.values()), 0)]
     if all(s.area is not None for s in grid):
-        panels.append(("area under the normalized curve", lambda s: s.area,
-                       lambda s: [a for a in map(normalized_area, s.runs) if a is not None]))
-    figure, axes = plt.subplots(1, len(panels), figsize=(6.2 * len(panels), max(3.4, 1.6 + 0.26 * len(grid))),
+        panels.append(("area under the normalized curve",
+                       lambda s: [a for a in map(normalized_area, s.runs) if a is not None], 1))
+    rows_count = len(grid) + len(methods)
+    figure, axes = plt.subplots(1, len(panels), figsize=(6.6 * len(panels), max(3.4, 1.5 + 0.23 * rows_count)),
                                 squeeze=False, layout="constrained")
-    styles = ["-", "--", "-.", ":"]
-    for panel, (title, value, spread) in zip(axes[0], panels):
-        ordered = sorted(grid, key=value)
-        ys = np.arange(len(ordered))
-        for y, setting in zip(ys, ordered):
-            color = "tab:red" if setting is defaults else "0.25"
-            seeds = spread(setting)
-            panel.plot([min(seeds), max(seeds)], [y, y], color=color, alpha=0.45, linewidth=2.5)
-            panel.plot(value(setting), y, "o", color=color, markersize=5)
-        panel.set_yticks(ys, [s.text() + (" (defaults)" if s is defaults else "") for s in ordered], fontsize=8)
-        panel.set_ylim(-0.6, len(ordered) - 0.4)
-        for k, label in enumerate(marks):
-            at = marks[label] if title == "final score" else area_marks.get(label)
-            if at is not None:
-                panel.axvline(at, color=f"C{k % 10}", linestyle=styles[k // 10 % 4], linewidth=1.6,
-                              label=label if title == "final score" else None)
+    for panel, (title, spread, index) in zip(axes[0], panels):
+        rows = [(s.text() + (" (defaults)" if s is defaults else ""), spread(s),
+                 "tab:red" if s is defaults else "0.45", False) for s in grid]
+        rows += [(label, values[index], "tab:blue", True) for label, values in methods.items() if values[index]]
+        rows.sort(key=lambda row: np.mean(row[1]))
+        ys = np.arange(len(rows))
+        for y, (_, values, color, is_method) in zip(ys, rows):
+            panel.plot([min(values), max(values)], [y, y], color=color, alpha=0.4, linewidth=2.5)
+            panel.plot(np.mean(values), y, "D" if is_method else "o", color=color, markersize=5)
+        panel.set_yticks(ys, [row[0] for row in rows], fontsize=8)
+        for tick, (_, _, color, is_method) in zip(panel.get_yticklabels(), rows):
+            tick.set_color("0.15" if color == "0.45" else color)
+            tick.set_fontweight("bold" if is_method else "normal")
+        means = [float(np.mean(row[1])) for row in rows]
+        low, high = min(means), max(max(row[1]) for row in rows)
+        pad = 0.04 * (high - low) or 0.01
+        panel.set_xlim(low - pad, high + pad)
+        panel.set_ylim(-0.6, len(rows) - 0.4)
         panel.set_xlabel(title)
         panel.grid(axis="x", alpha=0.3)
-    axes[0][0].set_ylabel(" / ".join(grid[0].values))
-    if marks:
-        figure.legend(loc="outside lower center", ncol=min(3, len(marks)), frameon=False, fontsize=8)
-    figure.suptitle(f"{env}: {len(grid)} fixed settings, best at the top (dot: mean over seeds, bar: their range)",
+    figure.suptitle(f"{env}: {len(grid)} fixed settings ({' / '.join(grid[0].values)}, grey; the defaults red) and "
+                    "the report's methods (blue), best at the top\ndot: mean over seeds, bar: their range",
                     fontsize=10)
     return save(figure, out, f"landscape_{benchmark}_{slug(env)}.png")
 
 
-def landscape_section(runs: list[Run], benchmark: str, out: str, number) -> list[str]:
-    """The section's lines (none without a grid of fixed settings); ``number`` formats a raw score."""
+def gains_with_intervals(grid: list[Setting], defaults: Setting | None, seed: int,
+                         reps: int) -> dict[str, tuple[float, float, float]]:
+    """What tuning these settings gains, with 95% percentile intervals from resampling each setting's seeds (with
+    replacement, settings independently): best setting − defaults, defaults − median setting, best − median. The
+    best is picked within each resample, so its interval carries the optimism of picking it on its own seeds."""
+    common = min(len(s.finals) for s in grid)
+    finals = np.array([list(s.finals.values())[:common] for s in grid])  # (settings, seeds)
+    rng = np.random.default_rng(seed)
+    draws = rng.integers(0, common, size=(reps, *finals.shape))
+    means = np.take_along_axis(np.broadcast_to(finals, draws.shape), draws, axis=2).mean(axis=2)  # (reps, settings)
+    best, median = means.max(axis=1), np.median(means, axis=1)
+    point_means = finals.mean(axis=1)
+    point_best, point_median = point_means.max(), float(np.median(point_means))
+    found = {"best − median": (point_best - point_median, best - median)}
+    if defaults is not None:
+        k = grid.index(defaults)
+        found = {"best − defaults": (point_best - point_means[k], best - means[:, k]),
+                 "defaults − median": (point_means[k] - point_median, means[:, k] - median), **found}
+    return {name: (float(point), *map(float, np.percentile(sampled, [2.5, 97.5])))
+            for name, (point, sampled) in found.items()}
+
+
+def failing(grid: list[Setting]) -> list[Setting]:
+    """The settings with a seed below half the best setting's mean final score: a run that failed."""
+    return [s for s in grid if min(s.finals.values()) < 0.5 * grid[0].final]
+
+
+def landscape_section(runs: list[Run], benchmark: str, out: str, number, seed: int = 0,
+                      reps: int = 10_000) -> list[str]:
+    """The section's lines (none without a grid of fixed settings); ``number`` formats a raw score; ``seed`` and
+    ``reps`` drive the intervals' resampling."""
     found = landscapes(runs)
     if not found:
         return []
@@ -178,12 +211,12 @@ def landscape_section(runs: list[Run], benchmark: str, out: str, number) -> list
         others = [r for r in runs if r.env_id == env and not r.grid and r.raw_score is not None]
         labels = list(dict.fromkeys(r.label for r in others))
         marks = {label: float(np.mean([r.raw_score for r in others if r.label == label])) for label in labels}
-        area_marks = {}
-        for label in labels:
-            areas_of = [a for a in (normalized_area(r) for r in others if r.label == label) if a is not None]
-            if areas_of:
-                area_marks[label] = float(np.mean(areas_of))
-        name = landscape_figure(env, grid, marks, area_marks, defaults, benchmark, out)
+        methods = {label: ([r.raw_score for r in others if r.label == label],
+                           [a for a in (normalized_area(r) for r in others if r.label == label) if a is not None])
+                   for label in labels}
+        name = landscape_figure(env, grid, methods, defaults, benchmark, out)
+        gains = gains_with_intervals(grid, defaults, seed, reps)
+        failed = failing(grid)
         chosen = best_chosen_on_other_seeds(grid)
         areas = [s for s in grid if s.area is not None]
         lines += [f"#### {env}", "", f"![landscape of fixed settings on {env}]({name})", "",
@@ -196,7 +229,14 @@ def landscape_section(runs: list[Run], benchmark: str, out: str, number) -> list
                   + (f". By area under the curve the best is {max(areas, key=lambda s: s.area).text()} "
                      f"({max(s.area for s in areas):.2f}), the defaults "
                      f"{'–' if defaults is None or defaults.area is None else f'{defaults.area:.2f}'}."
-                     if areas else "."), ""]
+                     if areas else "."),
+                  "",
+                  "What tuning gains (mean final score; 95% interval from resampling each setting's seeds): "
+                  + "; ".join(f"{what} {point:+.3g} [{low:+.3g}, {high:+.3g}]" for what, (point, low, high)
+                              in gains.items()) + ". "
+                  + ("Settings with a failed seed (below half the best mean): "
+                     + "; ".join(f"{s.text()} ({', '.join(number(v) for v in s.finals.values())})" for s in failed)
+                     if failed else "No setting has a failed seed (below half the best mean)."), ""]
         if not labels:
             continue
         lines += ["| method | final score | percentile among the settings | − median setting | − defaults | "

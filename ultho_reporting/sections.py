@@ -91,7 +91,7 @@ def benchmark_section(study: Study, benchmark: str, options: Options) -> tuple[l
     lines += decisions_section(runs, benchmark, methods, study.runs, options)
     lines += robustness_section(runs, benchmark, study.grid, options)
     lines += protocol_section(runs, benchmark, options.seed, options.reps)
-    lines += landscape_section(with_grid, benchmark, options.out, number)
+    lines += landscape_section(with_grid, benchmark, options.out, number, options.seed, options.reps)
     return lines, rows
 
 
