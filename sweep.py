@@ -16,7 +16,6 @@ Weights & Biases, in one W&B group named after the sweep directory (a relay's an
 """
 
 import argparse
-import ast
 import concurrent.futures
 import contextlib
 import io
@@ -32,7 +31,8 @@ from typing import Optional
 
 from ultho_bandit import CREDITS, SCALES, STRATEGIES, format_value, parse_clusters
 from ultho_runs import (RunFailed, UsageError, add_tracking_options, atomic_write_json, complete_run, parse_split_args,
-                        print_error, read_json, resolve_script, run_state, script_command, tracking_flags)
+                        print_error, read_json, resolve_script, run_state, script_command, script_literals,
+                        tracking_flags)
 
 TOOL = "sweep.py"
 SWEEP_FORMAT = 1
@@ -132,26 +132,13 @@ class Run:
         return script_command(self.script, self.args, self.path, resume=False)
 
 
-def script_constant(script: str, name: str):
-    """A literal module-level constant of a training script (SEARCH_SPACE, TUNABLE), read from its source:
-    importing the script would start torch and its environments. None when the script has no such literal."""
-    with open(script, encoding="utf-8") as f:
-        tree = ast.parse(f.read())
-    for node in tree.body:
-        if isinstance(node, ast.Assign) and [getattr(t, "id", None) for t in node.targets] == [name]:
-            try:
-                return ast.literal_eval(node.value)
-            except ValueError:
-                return None
-    return None
-
-
 def fixed_settings_grid(script: str, items: Optional[list[str]]) -> list[dict]:
     """Every combination of the clusters' values, in their order (the first cluster varies slowest): the script's
     own search space by default, else the ``--grid-clusters`` items (NAME takes the script's values,
     NAME=V1,V2,... sets them, as --ultho-clusters does)."""
-    space = script_constant(script, "SEARCH_SPACE") or {}
-    allowed = script_constant(script, "TUNABLE") or tuple(space)
+    constants = script_literals(script)[0]
+    space = constants.get("SEARCH_SPACE") or {}
+    allowed = constants.get("TUNABLE") or tuple(space)
     try:
         clusters = parse_clusters(items or list(space), space, allowed=allowed)
     except ValueError as err:

@@ -17,6 +17,7 @@ few lines it needs (its ``UsageError``, its atomic write).
 """
 
 import argparse
+import ast
 import contextlib
 import importlib.util
 import io
@@ -183,6 +184,26 @@ def wandb_logged_in() -> bool:
         return netrc.netrc(os.environ.get("NETRC")).authenticators(host) is not None
     except (OSError, netrc.NetrcParseError):
         return False
+
+
+# ---------------------------------------------------------------------- a script's literals
+def script_literals(path: str) -> tuple[dict, dict]:
+    """A training script's literal module-level constants (SEARCH_SPACE, TUNABLE, ...) and the literal defaults of
+    its Args fields, read from its source: importing it would start torch and its environments. Values that are not
+    literals are left out."""
+    with open(path, encoding="utf-8") as f:
+        tree = ast.parse(f.read())
+    constants, defaults = {}, {}
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name):
+            with contextlib.suppress(ValueError):
+                constants[node.targets[0].id] = ast.literal_eval(node.value)
+        elif isinstance(node, ast.ClassDef) and node.name == "Args":
+            for item in node.body:
+                if isinstance(item, ast.AnnAssign) and isinstance(item.target, ast.Name) and item.value:
+                    with contextlib.suppress(ValueError):
+                        defaults[item.target.id] = ast.literal_eval(item.value)
+    return constants, defaults
 
 
 # ---------------------------------------------------------------------- run directories

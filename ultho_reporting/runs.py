@@ -9,7 +9,6 @@ every file it read (for ``--export-data``) and collects warnings instead of stop
 method (PPO, ULTHO (c, W), Relay-ULTHO, ...), the groups every table and figure is drawn by.
 """
 
-import ast
 import csv
 import json
 import logging
@@ -21,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
+from ultho_runs import script_literals
 from ultho_reporting.references import BENCHMARKS, normalized
 
 RETURN_TAG = "charts/episodic_return"
@@ -449,19 +449,7 @@ def script_defaults(benchmark: str) -> dict:
     if benchmark not in _DEFAULTS:
         stem = "sac_ultho_dmc" if benchmark == "dmc" else f"ppo_ultho_{benchmark}"
         path = os.path.join(CHECKOUT, f"{stem}.py")
-        defaults = {}
-        if os.path.exists(path):
-            with open(path, encoding="utf-8") as f:
-                tree = ast.parse(f.read())
-            for node in tree.body:
-                if isinstance(node, ast.ClassDef) and node.name == "Args":
-                    for item in node.body:
-                        if isinstance(item, ast.AnnAssign) and isinstance(item.target, ast.Name) and item.value:
-                            try:
-                                defaults[item.target.id] = ast.literal_eval(item.value)
-                            except ValueError:
-                                pass  # not a literal (e.g. the search space's names): never named
-        _DEFAULTS[benchmark] = defaults
+        _DEFAULTS[benchmark] = script_literals(path)[1] if os.path.exists(path) else {}
     return _DEFAULTS[benchmark]
 
 
