@@ -80,7 +80,8 @@ HUMAN_NORMALIZATION = {
     "Qbert": (163.9, 13455.0),
 }
 """(random, human) scores of the ALE-5 games (docs/paper.md): human-normalized = (R - random) / (human - random).
-The same as ultho_report.py's ALE_HUMAN (tests/test_reference_scores.py checks; this file stays self-contained)."""
+The same as ultho_reporting/references.py's ALE_HUMAN (tests/test_reference_scores.py checks; this file stays
+self-contained)."""
 
 REWARD_CLIP = 10.0
 """Normalized rewards are clipped to [-10, 10], as in CleanRL's normalized-reward PPO scripts."""

@@ -81,7 +81,8 @@ EASY_MODE_RANGE = {
     "miner": (1.5, 13), "ninja": (3.5, 10), "plunder": (4.5, 30), "starpilot": (2.5, 64),
 }
 """(R_min, R_max) per game in easy mode (Cobbe et al. 2020): normalized score = (R - R_min) / (R_max - R_min).
-The same as ultho_report.py's PROCGEN_EASY (tests/test_reference_scores.py checks; the file stays self-contained)."""
+The same as ultho_reporting/references.py's PROCGEN_EASY (tests/test_reference_scores.py checks; the file stays
+self-contained)."""
 
 CPU_UPDATE_CHUNK = 512
 """--update-chunk 0 on the CPU: a minibatch of more samples is split into chunks of this many (the IMPALA CNN's
