@@ -77,6 +77,29 @@ def test_one_setting_is_no_landscape(tmp_path):
     assert landscape_section(study.runs, "minigrid", str(tmp_path), str) == []
 
 
+def test_without_a_grid_the_fixed_settings_runs_are_the_landscape(tmp_path):
+    # Fixed PPO at 10 epochs (the script's default) and at 5, no grid: the oracle of a two-value space.
+    finals = {10: (2000, 2200), 5: (1800, 1900)}
+    runs = [Run(f"ppo{epochs}-{seed}", "pybullet", "E", "ppo", None, None, seed, 2_000_000, score,
+                settings={"update_epochs": epochs, "seed": seed})
+            for epochs, scores in finals.items() for seed, score in zip((1, 2), scores)]
+    runs += [Run(f"ultho{seed}", "pybullet", "E", "ultho", 5.0, 10, seed, 2_000_000, score,
+                 search_space={"update_epochs": [10, 5]}) for seed, score in ((1, 1950), (2, 2050))]
+    study = Study()
+    study.runs = runs
+    study.normalize()
+    study.label_methods()
+    grid = landscapes(study.runs)["E"]
+    assert [s.values for s in grid] == [{"update_epochs": 10}, {"update_epochs": 5}]
+    lines = landscape_section(study.runs, "pybullet", str(tmp_path), lambda v: f"{v:.0f}")
+    text = "\n".join(lines)
+    assert "2 settings; best 2100 (10), median 1975, worst 1850 (5); the defaults (10) rank 1 of 2" in text
+    # ULTHO's mean 2000: above 1850, below 2100 (percentile 50), +25 over the median, 100 under the defaults, which
+    # are the best; the fixed runs are the settings, not methods placed among them.
+    assert "| ULTHO (c=5, W=10) | 2000 | 50 | +25 | -100 | -100 | 1 | – |" in lines
+    assert not any(line.startswith("| PPO") for line in lines)
+
+
 def test_a_real_tiny_grid_draws_its_landscape(tmp_path):
     out = tmp_path / "grid"
     swept = run("sweep.py", "--scripts", "ppo_ultho_minigrid.py", "--env-ids", "MiniGrid-Empty-5x5-v0", "--methods",

@@ -2,7 +2,8 @@
 
 A benchmark's grid is the runs a sweep.json lists as ``--methods grid`` (``sweep.py`` runs every combination of a
 search space's values with ``--no-ultho``); every other run, the defaults' fixed-settings runs included, is a
-method placed among its settings. For each environment with two or more
+method placed among its settings. A benchmark without a grid takes its fixed-settings runs as the settings when
+they differ (fixed PPO at 10 and at 5 epochs: the oracle of a two-value space). For each environment with two or more
 settings, the section ranks them by final score and by the area under the learning curve, draws them sorted with
 the other methods' scores across, and places each other method among them: its percentile, its score against
 the grid's median (what a setting picked at random gets), the script's defaults and the best setting, and its
@@ -16,7 +17,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from ultho_reporting.figures import save, slug
-from ultho_reporting.runs import NOT_SETTINGS, Run, script_defaults
+from ultho_reporting.runs import Run, disagreeing_settings, script_defaults
 from ultho_reporting.scores import normalized_area
 
 
@@ -46,15 +47,15 @@ class Setting:
                           else str(value) for value in self.values.values())
 
 
+def setting_runs(runs: list[Run]) -> list[Run]:
+    """The runs that make a benchmark's landscape: its grid's; without a grid, its fixed-settings runs when they
+    differ in a setting (as fixed PPO at two numbers of epochs: the oracle of a two-value space)."""
+    return [r for r in runs if r.grid] or [r for r in runs if r.kind == "ppo"]
+
+
 def grid_keys(runs: list[Run]) -> list[str]:
-    """The settings on which a benchmark's fixed-settings runs differ, in the order of their runs' settings."""
-    fixed = [r for r in runs if r.grid]
-    keys: list[str] = []
-    for run in fixed:
-        for key, value in run.settings.items():
-            if key not in NOT_SETTINGS and key not in keys and any(r.settings.get(key) != value for r in fixed):
-                keys.append(key)
-    return keys
+    """The settings on which a benchmark's landscape runs differ, in the order of their runs' settings."""
+    return disagreeing_settings(setting_runs(runs), script_defaults(runs[0].benchmark) if runs else None)
 
 
 def landscapes(runs: list[Run]) -> dict[str, list[Setting]]:
@@ -63,9 +64,10 @@ def landscapes(runs: list[Run]) -> dict[str, list[Setting]]:
     found: dict[str, list[Setting]] = {}
     if not keys:
         return found
-    for env in sorted({r.env_id for r in runs if r.grid}):
+    fixed = setting_runs(runs)
+    for env in sorted({r.env_id for r in fixed}):
         settings: dict[tuple, Setting] = {}
-        for run in (r for r in runs if r.grid and r.env_id == env and r.raw_score is not None):
+        for run in (r for r in fixed if r.env_id == env and r.raw_score is not None):
             values = {key: run.settings.get(key) for key in keys}
             settings.setdefault(tuple(values.values()), Setting(values, [])).runs.append(run)
         if len(settings) >= 2:
@@ -208,7 +210,8 @@ def landscape_section(runs: list[Run], benchmark: str, out: str, number, seed: i
     for env, grid in found.items():
         defaults = defaults_of(grid, benchmark)
         median = float(np.median([s.final for s in grid]))
-        others = [r for r in runs if r.env_id == env and not r.grid and r.raw_score is not None]
+        settings = {id(r) for s in grid for r in s.runs}
+        others = [r for r in runs if r.env_id == env and id(r) not in settings and r.raw_score is not None]
         labels = list(dict.fromkeys(r.label for r in others))
         marks = {label: float(np.mean([r.raw_score for r in others if r.label == label])) for label in labels}
         methods = {label: ([r.raw_score for r in others if r.label == label],

@@ -425,18 +425,28 @@ NOT_SETTINGS = ("seed", "env_id", "run_name", "exp_name", "runs_dir", "resume", 
 method's label."""
 
 
+def disagreeing_settings(runs: list[Run], defaults: dict | None = None) -> list[str]:
+    """The settings on which fixed-settings runs disagree, in the order of their runs' settings; a setting a run
+    does not record counts as ``defaults[key]`` (None without defaults)."""
+    defaults = defaults or {}
+    keys: list[str] = []
+    for run in runs:
+        for key, value in run.settings.items():
+            if key not in NOT_SETTINGS and key not in keys and \
+                    any(r.settings.get(key, defaults.get(key)) != value for r in runs):
+                keys.append(key)
+    return keys
+
+
 def fixed_settings_text(run: Run, runs: list[Run]) -> str:
     """", update_epochs=5" for a fixed-settings run whose settings differ from its script's defaults, naming only
     the settings on which the benchmark's fixed-settings runs disagree (so one set of runs keeps the plain name); a
     grid's runs are named among themselves, the others among the others."""
     peers = [r for r in runs if r.kind == run.kind and r.benchmark == run.benchmark and r.grid == run.grid]
     defaults = script_defaults(run.benchmark)
-    named = []
-    for key, value in run.settings.items():
-        if key in NOT_SETTINGS or key not in defaults or value == defaults[key]:
-            continue
-        if any(peer.settings.get(key, defaults[key]) != value for peer in peers):
-            named.append(f"{key}={value}")
+    disagreeing = disagreeing_settings(peers, defaults)
+    named = [f"{key}={value}" for key, value in run.settings.items()
+             if key in disagreeing and key in defaults and value != defaults[key]]
     return (", " + ", ".join(named)) if named else ""
 
 
