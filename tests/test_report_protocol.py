@@ -30,6 +30,14 @@ def test_the_expected_best_of_two_groups_of_two_by_hand():
         3.375, abs=0.01)
 
 
+def test_with_enough_runs_the_groups_are_distinct_runs_by_hand():
+    # Two groups of two out of {0, 1, 2, 3}, no run twice: the splits {0,1|2,3}, {0,2|1,3}, {0,3|1,2} are equally
+    # likely and their better group means are 2.5, 2 and 1.5: 2 on average (drawn with replacement, 1.95).
+    assert expected_best_of_groups(np.array([0.0, 1.0, 2.0, 3.0]), 2, 2, 0, 100_000) == pytest.approx(2.0, abs=0.01)
+    # Four runs, one group of four: always all of them.
+    assert expected_best_of_groups(np.array([0.0, 1.0, 2.0, 3.0]), 1, 4, 0, 100) == pytest.approx(1.5)
+
+
 def test_family_drops_c_and_w_only():
     assert family_of("ULTHO (c=5, W=10)") == "ULTHO"
     assert family_of("ULTHO ts/improvement/running (W=10)") == "ULTHO ts/improvement/running"
@@ -52,7 +60,7 @@ def test_the_best_point_per_environment_beside_the_same_selection_on_ppo():
     lines = protocol_section(study.runs, "minigrid", 0, 200_000)
     assert lines[0].startswith("### The paper's protocol")
     row = next(line for line in lines if line.startswith("| A |"))
-    assert row.startswith("| A | ULTHO | 2 x 2 | c=1, W=50 | 0.500 | 0.350 | 0.300 (2) | 0.337 |")
+    assert row.startswith("| A | ULTHO | 2 x 2 | c=1, W=50 | 0.500 | 0.350 | 0.300 (2) | 0.337 (bootstrap) |")
 
 
 def test_no_grid_no_section():

@@ -4,8 +4,9 @@ the same selection for fixed-settings PPO.
 The paper grid-searches ULTHO's exploration coefficient c and window W and reports the best point per environment
 against one fixed-settings PPO run per seed. Picking the best of K points, each a mean over m seeds, raises a
 score by itself, whatever the points are: the report shows that rise on PPO, where nothing is tuned, as the
-expected best mean of K groups of m PPO runs. With fewer PPO runs than K x m, the groups are drawn with
-replacement from the runs there are (a bootstrap), which the section says.
+expected best mean of K groups of m PPO runs. With K x m PPO runs or more, each draw splits K x m distinct runs into
+the groups (what K x m independent runs would give); with fewer, the groups are drawn with replacement from the runs
+there are (a bootstrap, which narrows the spread of a few runs), and the section says which.
 """
 
 import re
@@ -36,6 +37,11 @@ class Selection:
     ppo_best: float | None  # the expected best mean of K groups of m PPO runs, raw
     ppo_best_score: float | None  # the same, normalized
 
+    @property
+    def distinct(self) -> bool:
+        """Whether the PPO groups are distinct runs (K x m runs or more) rather than a bootstrap."""
+        return self.ppo_runs >= self.points * self.seeds
+
 
 def family_of(label: str) -> str:
     """The method's name without its (c, W) or (W): the methods a grid over (c, W) makes are one family."""
@@ -43,9 +49,14 @@ def family_of(label: str) -> str:
 
 
 def expected_best_of_groups(scores: np.ndarray, groups: int, size: int, seed: int, draws: int) -> float:
-    """E[max over `groups` groups of the mean of `size` runs drawn with replacement from `scores`]."""
+    """E[max over `groups` groups of the mean of `size` runs from `scores`]: the groups are distinct runs when
+    there are ``groups * size`` or more, else drawn with replacement."""
     rng = np.random.default_rng(seed)
-    picks = rng.integers(len(scores), size=(draws, groups, size))
+    if len(scores) >= groups * size:
+        picks = rng.permuted(np.tile(np.arange(len(scores)), (draws, 1)), axis=1)[:, :groups * size]
+        picks = picks.reshape(draws, groups, size)
+    else:
+        picks = rng.integers(len(scores), size=(draws, groups, size))
     return float(scores[picks].mean(axis=2).max(axis=1).mean())
 
 
@@ -96,17 +107,21 @@ def protocol_section(runs: list[Run], benchmark: str, seed: int, reps: int) -> l
              "per seed. Here, for each ULTHO method with scored runs at K >= 2 points (c, W) on an environment: the "
              "point with the highest mean final score over its seeds, beside the mean of all K points' means; and "
              f"the same selection made on {baseline}, where nothing is tuned: the expected best mean of K groups of "
-             f"m {baseline} runs (m: the seeds of the point with the fewest), the groups drawn with replacement from "
-             f"the {baseline} runs there are ({draws:,} draws, seed {seed}). What the best-of-K column gains over "
-             f"the plain {baseline} column is the selection's own effect.", "",
+             f"m {baseline} runs (m: the seeds of the point with the fewest; {draws:,} draws, seed {seed}): "
+             f"K x m distinct runs split into the groups where there are that many {baseline} runs (marked "
+             "distinct), else groups drawn with replacement from the runs there are (marked bootstrap, which "
+             f"narrows the spread of a few runs). What the best-of-K column gains over the plain {baseline} column "
+             "is the selection's own effect.", "",
              f"| environment | method | K points x m seeds | best (c, W) | its mean | mean of the K points | "
              f"{baseline} (runs) | {baseline}, best of K groups of m |",
              "|---|---|---|---|---|---|---|---|"]
     for s in found:
         c, window = s.best_point
         ppo = "–" if s.ppo is None else f"{number(s.ppo)} ({s.ppo_runs})"
+        drawn = "distinct" if s.distinct else "bootstrap"
+        best_of_groups = "–" if s.ppo_best is None else f"{number(s.ppo_best)} ({drawn})"
         lines.append(f"| {s.env_id} | {s.family} | {s.points} x {s.seeds} | c={c:g}, W={window} | {number(s.best)} | "
-                     f"{number(s.mean_of_points)} | {ppo} | {'–' if s.ppo_best is None else number(s.ppo_best)} |")
+                     f"{number(s.mean_of_points)} | {ppo} | {best_of_groups} |")
     lines.append("")
     for family in sorted({s.family for s in found}):
         members = [s for s in found if s.family == family and s.best_score is not None and s.ppo_best_score is not None]
