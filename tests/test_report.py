@@ -580,11 +580,14 @@ def test_exploration_ratio_and_decisions_by_environment_by_hand():
     assert exploration_ratio(Run("p", "pybullet", "A", "ultho", 5.0, 10, 1, 1, 0.0, search_space=space)) is None
 
 
-@pytest.mark.parametrize("variants, points", [(None, {(5.0, 10)}), (["ucb:level:none", "ts:level:none"], {(5.0, 10)}),
-                                              (["ucb:level:running"], set())])
-def test_only_the_papers_bandit_makes_a_sweep_grid_point_of_the_robustness_figure(tmp_path, variants, points):
+@pytest.mark.parametrize("variants, extra_args, points", [
+    (None, [], {(5.0, 10)}), (["ucb:level:none", "ts:level:none"], [], {(5.0, 10)}),
+    (["ucb:level:running"], [], set()), (None, ["--ultho-utility", "authors-return"], set()),
+    (None, ["--ultho-clusters", "update_epochs=10,5"], set()), (None, ["--update-epochs", "5"], {(5.0, 10)})])
+def test_only_the_papers_bandit_makes_a_sweep_grid_point_of_the_robustness_figure(tmp_path, variants, extra_args,
+                                                                                   points):
     grid = {"scripts": ["ppo_ultho_pybullet.py"], "env_ids": ["HopperBulletEnv-v0"], "methods": ["ultho"],
-            "c": [5.0], "window": [10], "points": [[5.0, 10]], "seeds": [1]}
+            "c": [5.0], "window": [10], "points": [[5.0, 10]], "seeds": [1], "extra_args": extra_args}
     if variants is not None:  # a sweep.json without the key ran the paper's bandit
         grid["variants"] = variants
     (tmp_path / "sweep").mkdir()

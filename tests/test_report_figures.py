@@ -1,6 +1,7 @@
 """The report's figures read in seconds: what each draws, read back from the matplotlib figure itself, on made-up
 runs (no training), and the committed results folders' figures all linked."""
 
+import dataclasses
 import os
 import re
 
@@ -110,6 +111,24 @@ def test_robustness_panels_share_one_y_range_and_a_single_point_is_not_a_figure(
     assert {axes.get_ylim() for axes in panels} == {(low, high)} and low < 30 and high > 96
     only_one = labelled([ultho_run(c_env, seed) for seed in (1, 2)])
     assert robustness_figure(only_one, "minigrid", {}, 0, 200, "unused") == (None, [], [(c_env, 5.0, 10)])
+
+
+def test_robustness_is_the_papers_bandit_against_plain_ppo(drawn):
+    """Runs at the same (c, W) with another credit are another method, and fixed PPO at other settings is not the
+    baseline's line."""
+    env = "MiniGrid-Empty-16x16-v0"
+    paper = [ultho_run(env, seed, c, window, score=0.9) for c, window in ((1.0, 50), (5.0, 10)) for seed in (1, 2)]
+    authors = [dataclasses.replace(ultho_run(env, seed, 1.0, 10, score=0.1), utility="authors-return")
+               for seed in (1, 2)]
+    other_ppo = [dataclasses.replace(fixed_run(env, seed, score=0.1), path=f"ppo-512-{seed}",
+                                     settings={"minibatch_size": 512}) for seed in (1, 2)]
+    runs = labelled(paper + authors + [fixed_run(env, 1, score=0.6)] + other_ppo)
+    name, empty, single = robustness_figure(runs, "minigrid", {}, 0, 200, "unused")
+    [panel] = [axes for axes in drawn[name].axes if axes.get_visible()]
+    # Two points, both at 90%: the authors' credit at (1, 10) is no third point; the baseline's line is PPO's 60%.
+    assert sorted(round(line.get_ydata()[0]) for line in panel.lines if line.get_marker() == "o") == [90, 90]
+    [baseline] = [line for line in panel.lines if line.get_linestyle() == "--"]
+    assert baseline.get_ydata()[0] == pytest.approx(60)
 
 
 def test_dmc_labels_name_the_algorithm_ultho_tunes():

@@ -559,8 +559,7 @@ def robustness_figure(runs: list[Run], benchmark: str, grid: dict, seed: int, re
     score at each (c, W) with its 95% interval, and the fixed-settings baseline.
     Returns (file name, the (c, W) cells of the sweeps' grids without scored runs, the environments left out for
     having one point: (env, c, W))."""
-    ultho = [r for r in runs if r.kind == "ultho" and r.score is not None and not r.narrowed
-             and r.variant == PAPER_VARIANT]
+    ultho = [r for r in runs if r.kind == "ultho" and r.score is not None and paper_bandit(r)]
     points_of = {env: grid.get((benchmark, env), set()) | {(r.c, r.window) for r in ultho if r.env_id == env}
                  for env in sorted({r.env_id for r in ultho})}
     single = [(env, *point) for env, points in points_of.items() if len(points) == 1 for point in points]
@@ -590,7 +589,7 @@ def robustness_figure(runs: list[Run], benchmark: str, grid: dict, seed: int, re
                 panel.errorbar(x, point, yerr=[[point - low], [high - point]], color=f"C{i}", capsize=4, marker="o",
                                linestyle="none", label=None if c in labelled else f"c = {c:g}")
                 labelled.add(c)
-        ppo = strata_of([r for r in runs if r.kind == "ppo" and r.env_id == env_id])
+        ppo = strata_of([r for r in runs if r.label == baseline_of(benchmark) and r.env_id == env_id])
         if ppo:
             point, low, high = (100 * v for v in aggregate_with_interval(ppo, "mean", seed, reps))
             panel.axhline(point, color="black", linestyle="--", label=f"{baseline_of(benchmark)} (fixed settings)")

@@ -25,6 +25,8 @@ from ultho_reporting.references import BENCHMARKS, normalized
 
 RETURN_TAG = "charts/episodic_return"
 PAPER_VARIANT = "ucb:level:none"
+BANDIT_CHANGING_FLAGS = ("--ultho-utility", "--ultho-clusters", "--ultho-strategy", "--ultho-credit", "--ultho-scale")
+"""A sweep's extra arguments that make its ULTHO runs something other than the paper's bandit."""
 HPO_METHODS = ("pbt", "pb2", "random")
 HPO_NAMES = {"pbt": "PBT", "pb2": "PB2", "random": "random search"}
 SCALARS_CSV = "scalars.csv"
@@ -227,8 +229,10 @@ class Study:
             return relays, studies, runs
         try:
             grid = sweep["grid"]
-            # The robustness figure is the paper's bandit over (c, W); a grid of other variants is not a point of it.
-            paper_bandit = PAPER_VARIANT in grid.get("variants", [PAPER_VARIANT])
+            # The robustness figure is the paper's bandit over (c, W); a grid of other variants, credits or search
+            # spaces is not a point of it.
+            paper_bandit = PAPER_VARIANT in grid.get("variants", [PAPER_VARIANT]) and not any(
+                str(token).startswith(BANDIT_CHANGING_FLAGS) for token in grid.get("extra_args") or [])
             if paper_bandit and ("ultho" in grid["methods"] or "relay" in grid["methods"]):
                 points = grid.get("points") or [[c, w] for c in grid["c"] for w in grid["window"]]
                 for script in grid["scripts"]:
