@@ -146,11 +146,20 @@ def test_many_methods_are_drawn_in_groups_each_with_its_own_style():
     relay = Run("relay", "minigrid", "A", "relay", 5.0, 10, 1, 120_000, 0.5)
     runs = labelled(runs + [relay])
     groups = method_groups(runs)
+    # The paper's protocol: the relay and the point it relays; the rest of the grid (c=1, W=50 ran on A and B).
     assert [(g.key, g.labels) for g in groups] == [
-        ("", ["PPO", "ULTHO (c=1, W=50)", "ULTHO (c=5, W=10)", "Relay-ULTHO (c=5, W=10)"]),
+        ("", ["PPO", "ULTHO (c=5, W=10)", "Relay-ULTHO (c=5, W=10)"]),
         ("grid", ["PPO", "ULTHO (c=1, W=10)", "ULTHO (c=1, W=50)", "ULTHO (c=5, W=10)", "ULTHO (c=5, W=100)"]),
         ("variants", ["PPO", "ULTHO ucb/level/running (c=1, W=10)"])]
-    assert groups[1].envs == ("A",) and groups[1].by_c
+    assert groups[1].envs == ("A", "B") and groups[1].by_c
+    # Without a relay (and another variant, so that the methods still need groups): the points run on every
+    # environment.
+    unrelayed = method_groups(labelled([r for r in runs if r.kind != "relay"]
+                                       + [ultho_run("A", 1, variant="ts:improvement:running")]))
+    assert [(g.key, g.labels) for g in unrelayed][:2] == [
+        ("", ["PPO", "ULTHO (c=1, W=50)", "ULTHO (c=5, W=10)"]),
+        ("grid", ["PPO", "ULTHO (c=1, W=10)", "ULTHO (c=1, W=50)", "ULTHO (c=5, W=10)", "ULTHO (c=5, W=100)"])]
+    assert unrelayed[1].envs == ("A",)
     styles = method_styles(runs)
     assert styles["PPO"].color == "black"
     assert len({(s.color, s.linestyle) for s in styles.values()}) == len(styles)

@@ -119,9 +119,9 @@ def paper_bandit(run: Run) -> bool:
 
 def method_groups(runs: list[Run]) -> list[Group]:
     """All methods in one group when there are at most ``MAX_LINES``; else the paper's protocol (the baseline,
-    the paper's ULTHO at the (c, W) points run on every environment the baseline ran, Relay-ULTHO), the whole
-    (c, W) grid where it has more points (one panel per c), the bandit variants, and the HPO baselines, each
-    beside the baseline."""
+    Relay-ULTHO and the paper's ULTHO at the (c, W) points it relays; without relays, at the points run on every
+    environment the baseline ran), the whole (c, W) grid where it has more points (one panel per c), the bandit
+    variants, and the HPO baselines, each beside the baseline."""
     labels = method_order(runs)
     if len(labels) <= MAX_LINES:
         return [Group("", "every method", labels)]
@@ -130,8 +130,11 @@ def method_groups(runs: list[Run]) -> list[Group]:
     envs = {r.env_id for r in runs if r.kind == "ppo"} or {r.env_id for r in runs}
     paper = [label for label in labels if paper_bandit(rep[label])]
     grid = [label for label in paper if rep[label].kind == "ultho"]
-    main = [label for label in grid if envs <= {r.env_id for r in runs if r.label == label}] or grid
-    main += [label for label in paper if rep[label].kind == "relay"]
+    relays = [label for label in paper if rep[label].kind == "relay"]
+    relayed = {label.replace("Relay-ULTHO", "ULTHO") for label in relays}
+    main = ([label for label in grid if label in relayed]
+            or [label for label in grid if envs <= {r.env_id for r in runs if r.label == label}] or grid)
+    main += relays
     groups = [Group("", f"the paper's protocol: {', '.join(baselines + main)}", baselines + main)]
     extra = [label for label in grid if label not in main]
     if extra:
