@@ -11,6 +11,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+import pytest
 import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -294,6 +295,39 @@ def assert_authors_credit_timing_and_exact_resume(script: str, tmp_path, args: l
     resumed = scalars(str(tmp_path / "killed"))
     assert summary(str(tmp_path / "whole"))["bandit"] == summary(str(tmp_path / "killed"))["bandit"]
     for tag in ("ultho/selected_cluster", "ultho/credit", "ultho/ucb/vf_coef", "losses/value_loss"):
+        assert whole[tag] == resumed[tag], tag
+
+
+def assert_round_robin_rotation_in_force_and_exact_resume(script: str, tmp_path, args: list[str]) -> None:
+    """--ultho-strategy round-robin over two clusters: the clusters alternate and each takes its values in turn,
+    whatever the credits (two seeds, different training, the same rotation); a value stays in force until its
+    cluster comes round again (hparams/ tags); no bandit statistic is logged; killed after its first checkpoint
+    and resumed, the run equals the uninterrupted one. `args`: a tiny run of six iterations with
+    --checkpoint-every 2 and a --runs-dir."""
+    rotation = [*args, "--ultho-strategy", "round-robin", "--ultho-clusters", "update_epochs=2,1",
+                "vf_coef=0.25,1.0", "--eval-episodes", "0", "--quiet"]
+    for result in run_concurrently(script, [[*rotation, "--seed", "1", "--run-name", "whole"],
+                                            [*rotation, "--seed", "2", "--run-name", "other-seed"]]):
+        assert result.returncode == 0, result.stderr
+    kill_after_first_checkpoint(script, str(tmp_path / "killed"), *rotation, "--seed", "1", "--run-name", "killed")
+    assert not (tmp_path / "killed" / "summary.json").exists()
+    run_ok(script, "--resume", str(tmp_path / "killed"), "--quiet")
+
+    whole, other, resumed = (scalars(str(tmp_path / name)) for name in ("whole", "other-seed", "killed"))
+
+    def values(series, tag):
+        return [v for _, v in series[tag]]
+
+    assert values(whole, "ultho/selected_cluster") == [0.0, 1.0, 0.0, 1.0, 0.0, 1.0]
+    assert values(whole, "hparams/update_epochs") == [2.0, 2.0, 1.0, 1.0, 2.0, 2.0]
+    assert values(whole, "hparams/vf_coef") == pytest.approx([0.5, 0.25, 0.25, 1.0, 1.0, 0.25])  # 0.5: default
+    assert values(whole, "ultho/credit") != values(other, "ultho/credit")
+    for tag in ("ultho/selected_cluster", "hparams/update_epochs", "hparams/vf_coef"):
+        assert values(other, tag) == values(whole, tag), tag
+    assert not [tag for tag in whole if tag.startswith(("ultho/ucb", "ultho/bonus"))]
+    # The sixth choice is credited after the run's last rollout, which never comes.
+    assert summary(str(tmp_path / "whole"))["bandit"]["selections"] == {"update_epochs": 3, "vf_coef": 2}
+    for tag in ("ultho/selected_cluster", "hparams/vf_coef", "ultho/credit", "losses/value_loss"):
         assert whole[tag] == resumed[tag], tag
 
 

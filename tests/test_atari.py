@@ -8,10 +8,10 @@ import pytest
 import torch
 
 from helpers import (
-    assert_authors_credit_timing_and_exact_resume, assert_diverged_and_recorded,
-    assert_bf16_resume_equals_uninterrupted, assert_existing_run_and_foreign_checkpoint_refused, assert_refused,
-    bf16_against_float32, evaluation_seeds, kill_after_first_checkpoint, real_rollout, run, run_bad_inputs,
-    run_concurrently, run_ok, scalars, summary,
+    assert_authors_credit_timing_and_exact_resume, assert_bf16_resume_equals_uninterrupted,
+    assert_diverged_and_recorded, assert_existing_run_and_foreign_checkpoint_refused, assert_refused,
+    assert_round_robin_rotation_in_force_and_exact_resume, bf16_against_float32, evaluation_seeds,
+    kill_after_first_checkpoint, real_rollout, run, run_bad_inputs, run_concurrently, run_ok, scalars, summary,
 )
 from ultho_bandit import ULTHO
 
@@ -351,7 +351,16 @@ def test_other_utility_signals_credit_every_choice(tmp_path, utility):
     assert len(credits) == credited and all(math.isfinite(c) for c in credits)
 
 
+# Six iterations, a checkpoint every two: the authors' credit and the round robin, each killed and resumed.
+SIX_ITERATIONS = ["--env-id", "Breakout", "--num-envs", "4", "--num-steps", "64", "--total-timesteps", "1536",
+                  "--minibatch-size", "64", "--checkpoint-every", "2"]
+
+
 def test_authors_credit_goes_to_the_choice_just_made_and_resumes_exactly(tmp_path):
-    args = ["--env-id", "Breakout", "--num-envs", "4", "--num-steps", "64", "--total-timesteps", "1536",
-            "--minibatch-size", "64", "--checkpoint-every", "2", "--runs-dir", str(tmp_path)]
+    args = [*SIX_ITERATIONS, "--runs-dir", str(tmp_path)]
     assert_authors_credit_timing_and_exact_resume(SCRIPT, tmp_path, args)
+
+
+def test_round_robin_takes_the_values_in_turn_and_resumes_exactly(tmp_path):
+    args = [*SIX_ITERATIONS, "--runs-dir", str(tmp_path)]
+    assert_round_robin_rotation_in_force_and_exact_resume(SCRIPT, tmp_path, args)

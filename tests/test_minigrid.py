@@ -11,8 +11,9 @@ import torch
 
 from helpers import (
     assert_authors_credit_timing_and_exact_resume, assert_diverged_and_recorded,
-    assert_existing_run_and_foreign_checkpoint_refused, assert_refused, evaluation_seeds, kill_after_first_checkpoint,
-    run, run_bad_inputs, run_ok, scalars, summary,
+    assert_existing_run_and_foreign_checkpoint_refused, assert_refused,
+    assert_round_robin_rotation_in_force_and_exact_resume, evaluation_seeds, kill_after_first_checkpoint, run,
+    run_bad_inputs, run_ok, scalars, summary,
 )
 from ultho_bandit import ULTHO
 
@@ -347,10 +348,19 @@ def test_fast_obs_run_equals_minigrid_obs_run(tmp_path):
     assert all(torch.equal(a[k], b[k]) for k in a)
 
 
+# Six iterations, a checkpoint every two: the authors' credit and the round robin, each killed and resumed.
+SIX_ITERATIONS = ["--env-id", "MiniGrid-Empty-5x5-v0", "--num-envs", "8", "--num-steps", "64",
+                  "--total-timesteps", "3072", "--minibatch-size", "128", "--checkpoint-every", "2"]
+
+
 def test_authors_credit_goes_to_the_choice_just_made_and_resumes_exactly(tmp_path):
-    args = ["--env-id", "MiniGrid-Empty-5x5-v0", "--num-envs", "8", "--num-steps", "64", "--total-timesteps", "3072",
-            "--minibatch-size", "128", "--checkpoint-every", "2", "--runs-dir", str(tmp_path)]
+    args = [*SIX_ITERATIONS, "--runs-dir", str(tmp_path)]
     assert_authors_credit_timing_and_exact_resume(SCRIPT, tmp_path, args)
+
+
+def test_round_robin_takes_the_values_in_turn_and_resumes_exactly(tmp_path):
+    args = [*SIX_ITERATIONS, "--runs-dir", str(tmp_path)]
+    assert_round_robin_rotation_in_force_and_exact_resume(SCRIPT, tmp_path, args)
 
 
 def test_evaluation_seeds_are_shared_by_no_neighbouring_run_and_no_training_episode(monkeypatch):

@@ -9,8 +9,9 @@ import torch
 
 from helpers import (
     assert_authors_credit_timing_and_exact_resume, assert_diverged_and_recorded,
-    assert_existing_run_and_foreign_checkpoint_refused, assert_refused, kill_after_first_checkpoint, run,
-    run_bad_inputs, run_ok, scalars, summary,
+    assert_existing_run_and_foreign_checkpoint_refused, assert_refused,
+    assert_round_robin_rotation_in_force_and_exact_resume, kill_after_first_checkpoint, run, run_bad_inputs, run_ok,
+    scalars, summary,
 )
 from ultho_bandit import ULTHO
 
@@ -330,7 +331,16 @@ def test_other_environments_run(tmp_path, env_id):
     assert s["env_id"] == env_id and s["global_step"] == 256 and s["eval"]["episodes"] == 1
 
 
+# Six iterations, a checkpoint every two: the authors' credit and the round robin, each killed and resumed.
+SIX_ITERATIONS = ["--env-id", "HopperBulletEnv-v0", "--num-steps", "128", "--total-timesteps", "768",
+                  "--update-epochs", "2", "--checkpoint-every", "2"]
+
+
 def test_authors_credit_goes_to_the_choice_just_made_and_resumes_exactly(tmp_path):
-    args = ["--env-id", "HopperBulletEnv-v0", "--num-steps", "128", "--total-timesteps", "768",
-            "--update-epochs", "2", "--checkpoint-every", "2", "--runs-dir", str(tmp_path)]
+    args = [*SIX_ITERATIONS, "--runs-dir", str(tmp_path)]
     assert_authors_credit_timing_and_exact_resume(SCRIPT, tmp_path, args)
+
+
+def test_round_robin_takes_the_values_in_turn_and_resumes_exactly(tmp_path):
+    args = [*SIX_ITERATIONS, "--runs-dir", str(tmp_path)]
+    assert_round_robin_rotation_in_force_and_exact_resume(SCRIPT, tmp_path, args)
