@@ -90,6 +90,32 @@ def test_the_decision_figure_has_a_row_per_environment_with_the_fixed_settings_m
     assert all("learning_rate, minibatch_size: U and U + bonus" in " ".join(t.split()) for t in titles)
 
 
+def test_with_one_cluster_each_run_is_a_strip_of_the_values_it_chose(drawn):
+    """The authors' PyBullet space: one run settles on 5 after two iterations, one rotates; a mean over them would
+    show a 70/30 mixture neither ran."""
+    space = {"update_epochs": [10, 5]}
+    settled, rotating = [0, 1] + [1] * 38, [0, 1] * 20
+    runs = []
+    for seed, picks in ((2, rotating), (1, settled)):
+        series = {"ultho/selected_cluster": np.column_stack([STEPS, np.zeros(40)]),
+                  "ultho/selected_value_index": np.column_stack([STEPS, picks]),
+                  "hparams/update_epochs": np.column_stack([STEPS, [space["update_epochs"][p] for p in picks]])}
+        runs.append(Run(f"A-{seed}", "pybullet", "A", "ultho", 5.0, 10, seed, 40_000, 0.5, search_space=space,
+                        series=series, variant="ucb:level:none", utility="authors-return"))
+    decision_figures(runs, "PyBullet authors", "unused", "authors", {"update_epochs": 10}, "PPO")
+    strips = drawn["decision_authors.png"].subfigs[0].axes[0]
+    assert [t.get_text() for t in strips.get_yticklabels()] == ["seed 1", "seed 2"]
+    colour = {tuple(h.get_facecolor()): h.get_label() for h in drawn["decision_authors.png"].legends[0].legend_handles}
+    bars = {0: [], 1: []}  # row: [(start, width, label)] of the strips' bars
+    for collection in strips.collections:
+        corners = collection.get_paths()[0].vertices
+        start, end, row = corners[:, 0].min(), corners[:, 0].max(), int(round(corners[:, 1].mean()))
+        bars[row].append((start, end - start, colour[tuple(collection.get_facecolor()[0])]))
+    assert [label for _, _, label in sorted(bars[0])] == ["update_epochs = 10 (strips)", "update_epochs = 5 (strips)"]
+    assert sorted(bars[0])[1][:2] == (2000.0, 39000.0)  # from iteration 2's step to the run's end
+    assert len(bars[1]) == 40  # the rotation: a new bar at every iteration
+
+
 def test_lines_that_coincide_are_grouped():
     zero, one = np.zeros(5), np.ones(5)
     assert coinciding([zero, one, zero + 1e-9, one * 2], 1e-6) == [[0, 2], [1], [3]]

@@ -25,7 +25,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 from matplotlib.ticker import EngFormatter, FixedLocator, FuncFormatter, NullLocator
 
-from ultho_reporting.decisions import bounds, cumulative_shares, in_force, value_counts
+from ultho_reporting.decisions import bounds, cumulative_shares, in_force, selections, value_counts
 from ultho_reporting.references import BENCHMARKS, reference_of
 from ultho_reporting.runs import HPO_METHODS, PAPER_VARIANT, Run, baseline_of, method_order, script_defaults
 from ultho_reporting.scores import aggregate_with_interval, efficiency_of, strata_of
@@ -297,6 +297,39 @@ def share_panel(axes: plt.Axes, runs: list[Run]) -> bool:
     return True
 
 
+def value_strip_panel(axes: plt.Axes, runs: list[Run]) -> bool:
+    """For a search space of one cluster: one strip per run (by seed), coloured by the value it chose at each
+    iteration, so that a run settling on one value, switching or rotating shows as itself (a mean over runs that
+    settled on different values would show a mixture none of them ran)."""
+    colours = [handle.get_facecolor() for handle in value_strip_handles(runs[0].search_space)]
+    drawn = False
+    ordered = sorted(runs, key=lambda r: r.seed)
+    for row, run in enumerate(ordered):
+        chosen = selections(run)
+        if chosen is None or not len(chosen):
+            continue
+        steps, picked = chosen[:, 0], chosen[:, 2].astype(int)
+        width = np.diff(steps, append=steps[-1] + (steps[-1] - steps[-2] if len(steps) > 1 else 1))
+        starts = np.flatnonzero(np.diff(picked, prepend=-1))
+        ends = np.append(starts[1:], len(picked))
+        for first, last in zip(starts, ends):
+            axes.broken_barh([(steps[first], steps[last - 1] + width[last - 1] - steps[first])], (row - 0.4, 0.8),
+                             color=colours[picked[first]], linewidth=0)
+        drawn = True
+    axes.set_yticks(range(len(ordered)), [f"seed {r.seed}" for r in ordered], fontsize=8)
+    axes.set_ylim(len(ordered) - 0.5, -0.5)
+    steps_axis(axes)
+    return drawn
+
+
+def value_strip_handles(space: dict) -> list[Patch]:
+    """The legend of value_strip_panel's colours."""
+    (cluster, values), = space.items()
+    colours = plt.get_cmap("viridis")(np.linspace(0.15, 0.85, len(values)))
+    return [Patch(color=colour, label=f"{cluster} = {compact(value)} (strips)")
+            for value, colour in zip(values, colours)]
+
+
 def value_panel(axes: plt.Axes, space: dict, shares: np.ndarray, fixed: dict | None = None,
                 baseline: str = "PPO", notes: list[str] | None = None) -> None:
     """One bar per value of each cluster, ``shares`` (clusters, values) in percent; with ``fixed``, the baseline's
@@ -331,13 +364,15 @@ def value_panel(axes: plt.Axes, space: dict, shares: np.ndarray, fixed: dict | N
 
 def decision_figures(runs: list[Run], title: str, out: str, name: str, fixed: dict | None = None,
                      baseline: str = "PPO") -> list[tuple[str, str]]:
-    """The decision-process figure, one row per environment (which cluster is chosen over training, each value's
+    """The decision-process figure, one row per environment (which cluster is chosen over training, or with one
+    cluster which value each run chose; each value's
     share of its cluster's selections, and each value's share of the iterations it was in force, the baseline's
     own value marked), and the confidence bounds, one panel per environment: [(what, file name)] of those drawn."""
     drawn = []
     envs = sorted({r.env_id for r in runs})
     by_env = [[r for r in runs if r.env_id == env] for env in envs]
     space = runs[0].search_space
+    single_cluster = len(space) == 1
     slots = sum(len(v) for v in space.values()) + len(space) - 1
     bar_width = max(3.2, 0.44 * slots)
     figure = plt.figure(figsize=(4.6 + 2 * bar_width + 0.6, 2.75 * len(envs) + 1.3), layout="constrained")
@@ -346,7 +381,11 @@ def decision_figures(runs: list[Run], title: str, out: str, name: str, fixed: di
     for row, env, members in zip(rows, envs, by_env):
         row.suptitle(f"{env} ({len(members)} run{'s' * (len(members) > 1)})", fontsize=10, fontweight="bold")
         shares_axes, chosen_axes, held_axes = row.subplots(1, 3, width_ratios=[4.6, bar_width, bar_width])
-        any_drawn |= share_panel(shares_axes, members)
+        if single_cluster:
+            any_drawn |= value_strip_panel(shares_axes, members)
+        else:
+            any_drawn |= share_panel(shares_axes, members)
+            shares_axes.set_ylabel("% of selections")
         counts = value_counts(members)
         totals = counts.sum(1, keepdims=True)
         value_panel(chosen_axes, space, 100 * counts / np.where(totals > 0, totals, 1), fixed, baseline,
@@ -359,15 +398,17 @@ def decision_figures(runs: list[Run], title: str, out: str, name: str, fixed: di
         else:
             held_counts, held_totals = held
             value_panel(held_axes, space, 100 * held_counts / np.maximum(held_totals, 1)[:, None], fixed, baseline)
-        shares_axes.set_ylabel("% of selections")
         chosen_axes.set_ylabel("% of its cluster's selections")
         if held is not None:
             held_axes.set_ylabel("% of iterations in force")
         if env == envs[0]:
-            shares_axes.set_title("which cluster is chosen (cumulative)", fontsize=9)
+            shares_axes.set_title("which value each run chose, iteration by iteration" if single_cluster
+                                  else "which cluster is chosen (cumulative)", fontsize=9)
             chosen_axes.set_title("which value is chosen", fontsize=9)
             held_axes.set_title("which value is in force", fontsize=9)
     handles = [Patch(color=f"C{k}", alpha=0.85, label=cluster) for k, cluster in enumerate(space)]
+    if single_cluster:
+        handles = value_strip_handles(space) + handles
     if fixed is not None:
         handles.append(Patch(facecolor="white", edgecolor="black", hatch="///",
                              label=f"{baseline}'s own setting (its fixed-settings runs'; value in bold)"))
