@@ -301,7 +301,7 @@ def value_strip_panel(axes: plt.Axes, runs: list[Run]) -> bool:
     """For a search space of one cluster: one strip per run (by seed), coloured by the value it chose at each
     iteration, so that a run settling on one value, switching or rotating shows as itself (a mean over runs that
     settled on different values would show a mixture none of them ran)."""
-    colours = [handle.get_facecolor() for handle in value_strip_handles(runs[0].search_space)]
+    colours = strip_colours(len(next(iter(runs[0].search_space.values()))))
     drawn = False
     ordered = sorted(runs, key=lambda r: r.seed)
     for row, run in enumerate(ordered):
@@ -309,11 +309,11 @@ def value_strip_panel(axes: plt.Axes, runs: list[Run]) -> bool:
         if chosen is None or not len(chosen):
             continue
         steps, picked = chosen[:, 0], chosen[:, 2].astype(int)
-        width = np.diff(steps, append=steps[-1] + (steps[-1] - steps[-2] if len(steps) > 1 else 1))
+        # A choice holds until the next one; the last for one more iteration's steps.
+        edges = np.append(steps, steps[-1] + (steps[-1] - steps[-2] if len(steps) > 1 else 1))
         starts = np.flatnonzero(np.diff(picked, prepend=-1))
-        ends = np.append(starts[1:], len(picked))
-        for first, last in zip(starts, ends):
-            axes.broken_barh([(steps[first], steps[last - 1] + width[last - 1] - steps[first])], (row - 0.4, 0.8),
+        for first, end in zip(starts, np.append(starts[1:], len(picked))):
+            axes.broken_barh([(edges[first], edges[end] - edges[first])], (row - 0.4, 0.8),
                              color=colours[picked[first]], linewidth=0)
         drawn = True
     axes.set_yticks(range(len(ordered)), [f"seed {r.seed}" for r in ordered], fontsize=8)
@@ -322,12 +322,15 @@ def value_strip_panel(axes: plt.Axes, runs: list[Run]) -> bool:
     return drawn
 
 
+def strip_colours(count: int) -> np.ndarray:
+    return plt.get_cmap("viridis")(np.linspace(0.15, 0.85, count))
+
+
 def value_strip_handles(space: dict) -> list[Patch]:
     """The legend of value_strip_panel's colours."""
     (cluster, values), = space.items()
-    colours = plt.get_cmap("viridis")(np.linspace(0.15, 0.85, len(values)))
     return [Patch(color=colour, label=f"{cluster} = {compact(value)} (strips)")
-            for value, colour in zip(values, colours)]
+            for value, colour in zip(values, strip_colours(len(values)))]
 
 
 def value_panel(axes: plt.Axes, space: dict, shares: np.ndarray, fixed: dict | None = None,
@@ -365,9 +368,9 @@ def value_panel(axes: plt.Axes, space: dict, shares: np.ndarray, fixed: dict | N
 def decision_figures(runs: list[Run], title: str, out: str, name: str, fixed: dict | None = None,
                      baseline: str = "PPO") -> list[tuple[str, str]]:
     """The decision-process figure, one row per environment (which cluster is chosen over training, or with one
-    cluster which value each run chose; each value's
-    share of its cluster's selections, and each value's share of the iterations it was in force, the baseline's
-    own value marked), and the confidence bounds, one panel per environment: [(what, file name)] of those drawn."""
+    cluster which value each run chose; each value's share of its cluster's selections; each value's share of the
+    iterations it was in force, the baseline's own value marked), and the confidence bounds, one panel per
+    environment: [(what, file name)] of those drawn."""
     drawn = []
     envs = sorted({r.env_id for r in runs})
     by_env = [[r for r in runs if r.env_id == env] for env in envs]
