@@ -434,6 +434,10 @@ def study(args: argparse.Namespace, script_args: list[str], log=print) -> dict:
         # for good, and every later `ray start` on the machine would then demand it.
         os.environ.setdefault("RAY_AUTH_MODE", "token")
         os.environ.setdefault("RAY_AUTH_TOKEN", secrets.token_hex(32))
+        # Ray starts its workers at niceness 15 so that its own services stay responsive. Here the trials are the
+        # study's whole work: beside any busy process they would get a few percent of a core. They train at the
+        # niceness the tool was started with, as a plain script's run does.
+        os.environ.setdefault("RAY_worker_niceness", "0")
     # Tune's own TensorBoard files would look like runs to ultho_report; its JSON and CSV logs stay.
     os.environ.setdefault("TUNE_DISABLE_AUTO_CALLBACK_LOGGERS", "1")
     os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")

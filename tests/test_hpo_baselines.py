@@ -196,6 +196,50 @@ def test_killed_study_started_again_finishes_without_rerunning_finished_trials(t
     assert again.returncode == 0 and "is done; nothing to run" in again.stdout
 
 
+def niceness_of_descendants_running(root_pid: int, script: str) -> dict[int, int]:
+    """pid -> niceness of every process under ``root_pid`` (its children, theirs, ...) whose command names ``script``,
+    read from /proc (a process may end between the reads: it is then left out)."""
+    parents, niceness = {}, {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as f:
+                    fields = f.read().rsplit(")", 1)[1].split()  # after the command name, which may hold spaces
+                with open(f"/proc/{entry}/cmdline", "rb") as f:
+                    command = f.read().decode(errors="replace")
+            except OSError:
+                continue
+            parents[int(entry)] = int(fields[1])
+            if script in command:
+                niceness[int(entry)] = int(fields[16])
+
+    def descends(pid: int) -> bool:
+        while pid > 1:
+            pid = parents.get(pid, 0)
+            if pid == root_pid:
+                return True
+        return False
+
+    return {pid: nice for pid, nice in niceness.items() if descends(pid)}
+
+
+def test_trials_train_at_the_niceness_the_tool_started_with_not_rays(tmp_path):
+    """Ray starts its workers at niceness 15; beside any busy process a trial's training then got a few percent of a
+    core. On the study's own Ray instance every segment's training process runs at the tool's niceness."""
+    args = [TOOL, SCRIPT, "--method", "random", "--samples", "1", "--interval", str(2 * STEP), "--study-dir",
+            str(tmp_path / "s"), "--num-cpus", "1", "--", *SCRIPT_ARGS, "--total-timesteps", str(4 * STEP)]
+    process = subprocess.Popen([sys.executable, *args], cwd=REPO, stdout=subprocess.DEVNULL,
+                               stderr=subprocess.DEVNULL)
+    seen: dict[int, int] = {}
+    deadline = time.time() + 600
+    while process.poll() is None and time.time() < deadline:
+        seen.update(niceness_of_descendants_running(process.pid, SCRIPT))
+        time.sleep(0.05)
+    assert process.wait(timeout=60) == 0
+    assert len(seen) >= 2, f"saw {len(seen)} of the two segments' training processes"
+    assert set(seen.values()) == {os.nice(0)}
+
+
 def test_killed_pbt_study_started_again_goes_on_in_step(tmp_path):
     """After a restart Tune's scheduler is new while the trials are an interval or more into the budget: the
     population must still be synchronized at every later interval, and the exploit made before the kill kept."""
