@@ -16,7 +16,7 @@ from ultho_reporting.references import PROCGEN_EASY, PYBULLET_REFERENCE, REFEREN
 from ultho_reporting.runs import Run, Study, raw_score
 from ultho_reporting.scores import (Efficiency, aggregate_with_interval, coverage_groups, efficiency_of,
                                     steps_to_threshold)
-from ultho_reporting.sections import decisions_by_environment, settings_in_force
+from ultho_reporting.sections import decisions_by_environment, selection_table, settings_in_force
 
 REPORT = "ultho_report.py"
 SCRIPT = "ppo_ultho_minigrid.py"
@@ -595,6 +595,23 @@ def test_only_the_papers_bandit_makes_a_sweep_grid_point_of_the_robustness_figur
     study = Study()
     study.discover([str(tmp_path)])
     assert study.grid.get(("pybullet", "HopperBulletEnv-v0"), set()) == points
+
+
+def test_a_strict_rotation_credits_every_value_equally_often_to_within_one_by_hand():
+    def counted(selections: dict) -> Run:
+        space = {cluster: list(range(len(counts))) for cluster, counts in selections.items()}
+        return Run("p", "pybullet", "A", "ultho", 5.0, 10, 1, 1, 0.0, search_space=space,
+                   value_selections=selections)
+
+    # 975 choices between two values in turn end one apart; 489 / 486 is not a rotation.
+    two_values = selection_table([counted({"update_epochs": [488, 487]}), counted({"update_epochs": [489, 486]})])
+    assert two_values[2] == "| update_epochs | 1,950 (100.0%) | 0: 977, 1: 973 |"
+    assert two_values[-1] == "Pooled over 2 runs. Runs that credited every value equally often, to within one " \
+                             "(a strict rotation): 1 of 2."
+    nine_values = selection_table([counted({"lr": [27, 27, 27], "vf": [27, 27, 27]}),
+                                   counted({"lr": [28, 27, 27], "vf": [27, 27, 27]}),
+                                   counted({"lr": [28, 27, 26], "vf": [27, 27, 27]})])
+    assert nine_values[-1].endswith("(a strict rotation): 2 of 3.")
 
 
 def test_settings_in_force_give_each_clusters_longest_held_value_by_hand():
