@@ -116,6 +116,33 @@ def test_with_one_cluster_each_run_is_a_strip_of_the_values_it_chose(drawn):
     assert len(bars[1]) == 40  # the rotation: a new bar at every iteration
 
 
+def test_a_long_rotation_is_drawn_as_even_bands_not_aliased_into_one_colour(drawn):
+    """976 iterations (PyBullet's 2M steps) are more than the strip's pixels: drawn a bar an iteration, a round robin
+    showed as the colour drawn last. Chunks of whole rotations show it as two even bands over the whole run; a run
+    that switches once shows as two full-height stretches."""
+    space = {"update_epochs": [10, 5]}
+    steps = np.arange(1, 977) * 2048.0
+    runs = []
+    for seed, picks in ((1, [0, 1] * 488), (2, [0] * 500 + [1] * 476)):
+        series = {"ultho/selected_cluster": np.column_stack([steps, np.zeros(976)]),
+                  "ultho/selected_value_index": np.column_stack([steps, picks])}
+        runs.append(Run(f"A-{seed}", "pybullet", "A", "ultho", 5.0, 10, seed, 2_000_000, 0.5, search_space=space,
+                        series=series, variant="round-robin:level:none"))
+    decision_figures(runs, "PyBullet round robin", "unused", "rr", {"update_epochs": 10}, "PPO")
+    strips = drawn["decision_rr.png"].subfigs[0].axes[0]
+    bars = {0: [], 1: []}  # row: [(start, end, bottom, height)]
+    for collection in strips.collections:
+        corners = collection.get_paths()[0].vertices
+        bottom, top = corners[:, 1].min(), corners[:, 1].max()
+        bars[int(round((bottom + top) / 2))].append((corners[:, 0].min(), corners[:, 0].max(),
+                                                     round(bottom, 6), round(top - bottom, 6)))
+    end = 977 * 2048.0
+    assert sorted(bars[0]) == [(2048.0, end, -0.4, 0.4), (2048.0, end, 0.0, 0.4)]
+    # The switch at iteration 501 falls inside the chunk of iterations 499-504: 2 of its 6 on 10, 4 on 5.
+    assert [(round(b[0]), round(b[3], 4)) for b in sorted(bars[1])] == [(2048, 0.8), (499 * 2048, 0.2667),
+                                                                        (499 * 2048, 0.5333), (505 * 2048, 0.8)]
+
+
 def test_lines_that_coincide_are_grouped():
     zero, one = np.zeros(5), np.ones(5)
     assert coinciding([zero, one, zero + 1e-9, one * 2], 1e-6) == [[0, 2], [1], [3]]

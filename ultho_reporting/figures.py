@@ -297,11 +297,18 @@ def share_panel(axes: plt.Axes, runs: list[Run]) -> bool:
     return True
 
 
+STRIP_CHUNKS = 200  # about the strip's width in pixels: finer detail would alias into one colour
+
+
 def value_strip_panel(axes: plt.Axes, runs: list[Run]) -> bool:
     """For a search space of one cluster: one strip per run (by seed), coloured by the value it chose at each
     iteration, so that a run settling on one value, switching or rotating shows as itself (a mean over runs that
-    settled on different values would show a mixture none of them ran)."""
-    colours = strip_colours(len(next(iter(runs[0].search_space.values()))))
+    settled on different values would show a mixture none of them ran). A run of more iterations than the strip
+    has pixels is drawn in chunks, each stacked by the share of its iterations on each value: drawn one iteration
+    a bar, a rotation would alias into whichever colour came last. A chunk holds a multiple of the values' count,
+    so that a strict rotation shows as even bands."""
+    count = len(next(iter(runs[0].search_space.values())))
+    colours = strip_colours(count)
     drawn = False
     ordered = sorted(runs, key=lambda r: r.seed)
     for row, run in enumerate(ordered):
@@ -311,10 +318,18 @@ def value_strip_panel(axes: plt.Axes, runs: list[Run]) -> bool:
         steps, picked = chosen[:, 0], chosen[:, 2].astype(int)
         # A choice holds until the next one; the last for one more iteration's steps.
         edges = np.append(steps, steps[-1] + (steps[-1] - steps[-2] if len(steps) > 1 else 1))
-        starts = np.flatnonzero(np.diff(picked, prepend=-1))
-        for first, end in zip(starts, np.append(starts[1:], len(picked))):
-            axes.broken_barh([(edges[first], edges[end] - edges[first])], (row - 0.4, 0.8),
-                             color=colours[picked[first]], linewidth=0)
+        size = 1 if len(picked) <= STRIP_CHUNKS else count * -(-len(picked) // (STRIP_CHUNKS * count))
+        firsts = np.arange(0, len(picked), size)
+        shares = np.stack([np.bincount(picked[i:i + size], minlength=count) / len(picked[i:i + size])
+                           for i in firsts])
+        starts = [k for k in range(len(firsts)) if k == 0 or not np.array_equal(shares[k], shares[k - 1])]
+        for k, next_k in zip(starts, [*starts[1:], len(firsts)]):
+            left, right = edges[firsts[k]], edges[firsts[next_k]] if next_k < len(firsts) else edges[-1]
+            top = row - 0.4
+            for value in np.flatnonzero(shares[k]):
+                axes.broken_barh([(left, right - left)], (top, 0.8 * shares[k][value]), color=colours[value],
+                                 linewidth=0)
+                top += 0.8 * shares[k][value]
         drawn = True
     axes.set_yticks(range(len(ordered)), [f"seed {r.seed}" for r in ordered], fontsize=8)
     axes.set_ylim(len(ordered) - 0.5, -0.5)
@@ -405,7 +420,7 @@ def decision_figures(runs: list[Run], title: str, out: str, name: str, fixed: di
         if held is not None:
             held_axes.set_ylabel("% of iterations in force")
         if env == envs[0]:
-            shares_axes.set_title("which value each run chose, iteration by iteration" if single_cluster
+            shares_axes.set_title("which value each run chose, over training" if single_cluster
                                   else "which cluster is chosen (cumulative)", fontsize=9)
             chosen_axes.set_title("which value is chosen", fontsize=9)
             held_axes.set_title("which value is in force", fontsize=9)

@@ -318,7 +318,9 @@ def decisions_section(runs: list[Run], benchmark: str, methods: list[str], all_r
     baseline = baseline_of(benchmark)
     lines = ["### Decision process and confidence bounds", "",
              "The decision figures have one row per environment: left, each cluster's cumulative share of the "
-             "selections so far (mean over the environment's runs); middle, the share of each value among its "
+             "selections so far (mean over the environment's runs), or with a search space of one cluster a strip "
+             "per run of the value it chose, each stretch of a few iterations split by the share of each value; "
+             "middle, the share of each value among its "
              "cluster's selections; right, the share of the logged iterations each value was in force (a "
              "cluster the bandit stopped choosing keeps its last value, one it never chose the script's "
              "setting), both pooled over the environment's runs. The hatched bar with the value in bold is "
