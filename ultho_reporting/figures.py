@@ -319,12 +319,11 @@ def value_strip_panel(axes: plt.Axes, runs: list[Run]) -> bool:
         # A choice holds until the next one; the last for one more iteration's steps.
         edges = np.append(steps, steps[-1] + (steps[-1] - steps[-2] if len(steps) > 1 else 1))
         size = 1 if len(picked) <= STRIP_CHUNKS else count * -(-len(picked) // (STRIP_CHUNKS * count))
-        firsts = np.arange(0, len(picked), size)
-        shares = np.stack([np.bincount(picked[i:i + size], minlength=count) / len(picked[i:i + size])
-                           for i in firsts])
-        starts = [k for k in range(len(firsts)) if k == 0 or not np.array_equal(shares[k], shares[k - 1])]
-        for k, next_k in zip(starts, [*starts[1:], len(firsts)]):
-            left, right = edges[firsts[k]], edges[firsts[next_k]] if next_k < len(firsts) else edges[-1]
+        bounds = np.append(np.arange(0, len(picked), size), len(picked))  # chunk k: bounds[k] to bounds[k + 1]
+        shares = np.stack([np.bincount(picked[a:b], minlength=count) / (b - a) for a, b in zip(bounds, bounds[1:])])
+        starts = [k for k in range(len(shares)) if k == 0 or not np.array_equal(shares[k], shares[k - 1])]
+        for k, next_k in zip(starts, [*starts[1:], len(shares)]):
+            left, right = edges[bounds[k]], edges[bounds[next_k]]
             top = row - 0.4
             for value in np.flatnonzero(shares[k]):
                 axes.broken_barh([(left, right - left)], (top, 0.8 * shares[k][value]), color=colours[value],
