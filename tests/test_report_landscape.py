@@ -62,11 +62,15 @@ def test_the_settings_ranked_and_each_method_placed_among_them_by_hand(tmp_path)
     assert "best − defaults +0.1 [" in text and "Settings with a failed seed (below half the best mean): 0.005 " \
         "(0.100, 0.300)" in text
     row = next(line for line in lines if line.startswith("| ULTHO (c=5, W=10) |"))
-    # 0.7: percentile 83; +0.1 over the median and the defaults, level with the best; one run a seed; both runs
-    # held 2.5e-3 longest, the best setting.
-    assert row == "| ULTHO (c=5, W=10) | 0.700 | 83 | +0.1 | +0.1 | +0 | 1 | 1, 1 |"
-    # 0.62: above 0.6 and 0.2 (67), 0.02 over the median and the defaults' grid runs, 0.08 under the best.
-    assert "| PPO | 0.620 | 67 | +0.02 | +0.02 | -0.08 | 1 | – |" in lines
+    # 0.7: percentile 83; +0.1 over the median and the defaults, level with the best; no round robin; one run a
+    # seed; both runs held 2.5e-3 longest, the best setting. Resampled, ULTHO's mean is 0.65, 0.7 or 0.75 and the
+    # defaults' 0.5, 0.6 or 0.7 (each extreme with probability 1/4), so the difference's extremes, -0.05 and
+    # +0.25, each have probability 1/16 > 2.5%: they are the interval's ends; against the best (0.6, 0.7 or 0.8),
+    # -0.15 and +0.15.
+    assert row == "| ULTHO (c=5, W=10) | 0.700 | 83 | +0.1 | +0.1 [-0.05, +0.25] | +0 [-0.15, +0.15] | – | 1 | 1, 1 |"
+    # 0.62: above 0.6 and 0.2 (67), 0.02 over the median and the defaults' grid runs, 0.08 under the best; one run
+    # against two: 0.62 minus 0.5, 0.6 or 0.7, and minus 0.6, 0.7 or 0.8.
+    assert "| PPO | 0.620 | 67 | +0.02 | +0.02 [-0.08, +0.12] | -0.08 [-0.18, +0.02] | – | 1 | – |" in lines
     assert os.path.exists(tmp_path / "landscape_minigrid_E.png")
 
 
@@ -85,6 +89,12 @@ def test_without_a_grid_the_fixed_settings_runs_are_the_landscape(tmp_path):
             for epochs, scores in finals.items() for seed, score in zip((1, 2), scores)]
     runs += [Run(f"ultho{seed}", "pybullet", "E", "ultho", 5.0, 10, seed, 2_000_000, score,
                  search_space={"update_epochs": [10, 5]}) for seed, score in ((1, 1950), (2, 2050))]
+    # The round robin over the same two values, and ULTHO over another space, which has no round robin to face.
+    runs += [Run(f"rr{seed}", "pybullet", "E", "ultho", None, None, seed, 2_000_000, score,
+                 search_space={"update_epochs": [10, 5]}, variant="round-robin:level:none")
+             for seed, score in ((1, 1900), (2, 1900))]
+    runs += [Run(f"other{seed}", "pybullet", "E", "ultho", 5.0, 10, seed, 2_000_000, 1800,
+                 search_space={"learning_rate": [2e-4, 5e-4]}) for seed in (1, 2)]
     study = Study()
     study.runs = runs
     study.normalize()
@@ -95,8 +105,15 @@ def test_without_a_grid_the_fixed_settings_runs_are_the_landscape(tmp_path):
     text = "\n".join(lines)
     assert "2 settings; best 2100 (10), median 1975, worst 1850 (5); the defaults (10) rank 1 of 2" in text
     # ULTHO's mean 2000: above 1850, below 2100 (percentile 50), +25 over the median, 100 under the defaults, which
-    # are the best; the fixed runs are the settings, not methods placed among them.
-    assert "| ULTHO (c=5, W=10) | 2000 | 50 | +25 | -100 | -100 | 1 | – |" in lines
+    # are the best; the fixed runs are the settings, not methods placed among them. Resampled: ULTHO 1950, 2000 or
+    # 2050 minus the defaults' 2000, 2100 or 2200 (extremes at 1/16 each): [-250, +50]; minus the round robin's
+    # 1900 every time: +100 [+50, +150].
+    assert "| ULTHO (c=5, W=10) | 2000 | 50 | +25 | -100 [-250, +50] | -100 [-250, +50] | +100 [+50, +150] | 1 | – |" \
+        in lines
+    # The round robin faces no round robin; ULTHO over the learning rate faces none on its own values.
+    assert "| Round robin | 1900 | 50 | -75 | -200 [-300, -100] | -200 [-300, -100] | – | 1 | – |" in lines
+    assert "| ULTHO (c=5, W=10) on learning_rate=0.0002/0.0005 | 1800 | 0 | -175 | -300 [-400, -200] | " \
+        "-300 [-400, -200] | – | 1 | – |" in lines
     assert not any(line.startswith("| PPO") for line in lines)
 
 

@@ -6,9 +6,10 @@ method placed among its settings. A benchmark without a grid takes its fixed-set
 they differ (fixed PPO at 10 and at 5 epochs: the oracle of a two-value space). For each environment with two or more
 settings, the section ranks them by final score and by the area under the learning curve, draws them sorted with
 the other methods' scores across, and places each other method among them: its percentile, its score against
-the grid's median (what a setting picked at random gets), the script's defaults and the best setting, and its
-cost in runs. The best setting chosen on the seeds it is scored on is optimistic, so the section also gives the
-best setting chosen on the other seeds (leave one seed out), which is what a grid search could expect.
+the grid's median (what a setting picked at random gets), the script's defaults, the best setting and a round
+robin over the same values (with intervals), and its cost in runs. The best setting chosen on the seeds it is
+scored on is optimistic, so the section also gives the best setting chosen on the other seeds (leave one seed
+out), which is what a grid search could expect.
 """
 
 from dataclasses import dataclass
@@ -185,6 +186,42 @@ def gains_with_intervals(grid: list[Setting], defaults: Setting | None, seed: in
             for name, (point, sampled) in found.items()}
 
 
+def difference_with_interval(scores: list[float], other: list[float], rng: np.random.Generator,
+                             reps: int) -> tuple[float, float, float]:
+    """mean(scores) − mean(other), with its 95% percentile interval from resampling each side's runs (with
+    replacement, the two sides independently)."""
+    a, b = np.asarray(scores, dtype=float), np.asarray(other, dtype=float)
+    sampled = (a[rng.integers(0, len(a), size=(reps, len(a)))].mean(axis=1)
+               - b[rng.integers(0, len(b), size=(reps, len(b)))].mean(axis=1))
+    return float(a.mean() - b.mean()), *map(float, np.percentile(sampled, [2.5, 97.5]))
+
+
+def signed(value: float) -> str:
+    """A difference of scores with its sign: three significant digits, whole numbers from 100 on (1,040, not
+    1.04e+03)."""
+    return f"{value:+,.0f}" if abs(value) >= 100 else f"{value:+.3g}"
+
+
+def difference_cell(members: list[Run], reference: list[float], rng: np.random.Generator, reps: int) -> str:
+    """The method's runs' mean final score minus the reference's, with its interval ("–" without a reference)."""
+    if not reference:
+        return "–"
+    point, low, high = difference_with_interval([r.raw_score for r in members], reference, rng, reps)
+    return f"{signed(point)} [{signed(low)}, {signed(high)}]"
+
+
+def is_round_robin(run: Run) -> bool:
+    return run.kind == "ultho" and run.variant.startswith("round-robin:")
+
+
+def round_robin_of(members: list[Run], others: list[Run]) -> list[Run]:
+    """The round-robin runs on the search space of ULTHO runs ``members`` (none for a round robin itself): the
+    control that takes the same values in turn, without a bandit."""
+    if not members or members[0].kind != "ultho" or is_round_robin(members[0]):
+        return []
+    return [r for r in others if is_round_robin(r) and r.search_space == members[0].search_space]
+
+
 def failing(grid: list[Setting]) -> list[Setting]:
     """The settings with a seed below half the best setting's mean final score: a run that failed."""
     return [s for s in grid if min(s.finals.values()) < 0.5 * grid[0].final]
@@ -203,7 +240,10 @@ def landscape_section(runs: list[Run], benchmark: str, out: str, number, seed: i
              f"Every fixed setting of {', '.join(keys)} that was run, per environment, ranked by mean final score "
              "over its seeds; the methods of this report placed among them: their percentile among the settings "
              "(100: above all), their mean final score minus the grid's median setting's (what a setting picked at "
-             "random gets), minus the script's defaults' and minus the best setting's, and their cost in runs of "
+             "random gets), minus the script's defaults', minus the best setting's and minus a round robin's over "
+             "the same values (the control that takes them in turn without a bandit), each difference with a 95% "
+             "interval from resampling the two sides' seeds independently (the best setting held as ranked), and "
+             "their cost in runs of "
              f"{budget:,} steps per seed (a grid search costs one run per setting). The best setting is chosen on "
              "the seeds it is scored on, so it is optimistic; the last column of the settings table chooses it on "
              "the other seeds instead (leave one seed out), what a grid search could expect.", ""]
@@ -235,16 +275,18 @@ def landscape_section(runs: list[Run], benchmark: str, out: str, number, seed: i
                      if areas else "."),
                   "",
                   "What tuning gains (mean final score; 95% interval from resampling each setting's seeds): "
-                  + "; ".join(f"{what} {point:+.3g} [{low:+.3g}, {high:+.3g}]" for what, (point, low, high)
+                  + "; ".join(f"{what} {signed(point)} [{signed(low)}, {signed(high)}]" for what, (point, low, high)
                               in gains.items()) + ". "
                   + ("Settings with a failed seed (below half the best mean): "
                      + "; ".join(f"{s.text()} ({', '.join(number(v) for v in s.finals.values())})" for s in failed)
                      if failed else "No setting has a failed seed (below half the best mean)."), ""]
         if not labels:
             continue
+        rng = np.random.default_rng(seed)
         lines += ["| method | final score | percentile among the settings | − median setting | − defaults | "
-                  "− best setting | runs per seed | settings its runs held longest (rank of " + str(len(grid)) + ") |",
-                  "|---|---|---|---|---|---|---|---|"]
+                  "− best setting | − round robin on its values | runs per seed | settings its runs held longest "
+                  "(rank of " + str(len(grid)) + ") |",
+                  "|---|---|---|---|---|---|---|---|---|"]
         for label in labels:
             members = [r for r in others if r.label == label]
             score = marks[label]
@@ -252,8 +294,10 @@ def landscape_section(runs: list[Run], benchmark: str, out: str, number, seed: i
             ranks = [rank_of(h, grid) for h in held if h is not None]
             held_text = ", ".join("–" if rank is None else str(rank) for rank in ranks) if ranks else "–"
             cost = float(np.mean([r.budget for r in members])) / budget
-            lines.append(f"| {label} | {number(score)} | {percentile(score, grid):.0f} | {score - median:+.3g} | "
-                         f"{'–' if defaults is None else f'{score - defaults.final:+.3g}'} | "
-                         f"{score - grid[0].final:+.3g} | {cost:.3g} | {held_text} |")
+            references = [list(defaults.finals.values()) if defaults else [], list(grid[0].finals.values()),
+                          [r.raw_score for r in round_robin_of(members, others)]]
+            differences = " | ".join(difference_cell(members, reference, rng, reps) for reference in references)
+            lines.append(f"| {label} | {number(score)} | {percentile(score, grid):.0f} | {signed(score - median)} | "
+                         f"{differences} | {cost:.3g} | {held_text} |")
         lines.append("")
     return lines
