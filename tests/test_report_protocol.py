@@ -66,3 +66,16 @@ def test_the_best_point_per_environment_beside_the_same_selection_on_ppo():
 def test_no_grid_no_section():
     study = study_of([made("ppo", "A", 0.2, 1), made("ultho", "A", 0.1, 1, 5.0, 10, SPACE)])
     assert protocol_section(study.runs, "minigrid", 0, 1000) == []
+
+
+def test_points_are_compared_on_the_seeds_they_all_have():
+    # A grid still running: c=5, W=10 on seeds 1-3 (mean 0.433), c=1, W=50 on seed 1 only (0.4). On all their seeds
+    # the first would win by its seeds 2 and 3; on the shared seed 1 it scores 0.1 against 0.4.
+    runs = [made("ppo", "A", 0.2, 1), made("ppo", "A", 0.4, 2),
+            made("ultho", "A", 0.1, 1, 5.0, 10, SPACE), made("ultho", "A", 0.3, 2, 5.0, 10, SPACE),
+            made("ultho", "A", 0.9, 3, 5.0, 10, SPACE), made("ultho", "A", 0.4, 1, 1.0, 50, SPACE),
+            made("ultho", "B", 0.5, 1, 5.0, 10, SPACE), made("ultho", "B", 0.6, 2, 1.0, 50, SPACE)]  # B: no shared seed
+    [found] = best_points(study_of(runs).runs, "minigrid", seed=0, reps=1000)
+    assert (found.env_id, found.points, found.seeds) == ("A", 2, 1)
+    assert found.best_point == (1.0, 50) and found.best == pytest.approx(0.4)
+    assert found.mean_of_points == pytest.approx((0.1 + 0.4) / 2)

@@ -27,7 +27,7 @@ class Selection:
     env_id: str
     family: str  # the method without its (c, W)
     points: int  # K: the (c, W) points with scored runs
-    seeds: int  # m: the scored runs of the point with the fewest
+    seeds: int  # m: the seeds every point has scored runs on (the points are compared on those alone)
     best_point: tuple[float, int]
     best: float  # the best point's mean raw score
     mean_of_points: float  # the mean of the points' means
@@ -61,7 +61,8 @@ def expected_best_of_groups(scores: np.ndarray, groups: int, size: int, seed: in
 
 
 def best_points(runs: list[Run], benchmark: str, seed: int, reps: int) -> list[Selection]:
-    """Every (family, environment) with scored ULTHO runs at two or more (c, W) points."""
+    """Every (family, environment) with scored ULTHO runs at two or more (c, W) points, compared on the seeds they
+    all have."""
     found = []
     baseline = baseline_of(benchmark)
     grids: dict[tuple[str, str], dict[tuple[float, int], list[Run]]] = {}
@@ -70,13 +71,16 @@ def best_points(runs: list[Run], benchmark: str, seed: int, reps: int) -> list[S
             key = (family_of(run.label), run.env_id)
             grids.setdefault(key, {}).setdefault((run.c, run.window), []).append(run)
     for (family, env_id), points in sorted(grids.items(), key=lambda item: (item[0][1], item[0][0])):
-        if len(points) < 2:
+        shared = set.intersection(*({r.seed for r in members} for members in points.values()))
+        if len(points) < 2 or not shared:
             continue
+        # Points compared on different seeds would rank the seeds as much as the points (a grid still running).
+        points = {point: [r for r in members if r.seed in shared] for point, members in points.items()}
         means = {point: float(np.mean([r.raw_score for r in members])) for point, members in points.items()}
         best_point = max(sorted(means), key=means.get)
         normalized = [r.score for r in points[best_point]]
         ppo = [r for r in runs if r.label == baseline and r.env_id == env_id and r.raw_score is not None]
-        size = min(len(members) for members in points.values())
+        size = len(shared)
         draws = min(MAX_DRAWS, reps)
         raw = np.array([r.raw_score for r in ppo])
         scored = np.array([r.score for r in ppo if r.score is not None])
@@ -107,7 +111,8 @@ def protocol_section(runs: list[Run], benchmark: str, seed: int, reps: int) -> l
              "per seed. Here, for each ULTHO method with scored runs at K >= 2 points (c, W) on an environment: the "
              "point with the highest mean final score over its seeds, beside the mean of all K points' means; and "
              f"the same selection made on {baseline}, where nothing is tuned: the expected best mean of K groups of "
-             f"m {baseline} runs (m: the seeds of the point with the fewest; {draws:,} draws, seed {seed}): "
+             f"m {baseline} runs (m: the seeds every point has, on which alone the points are compared; {draws:,} "
+             f"draws, seed {seed}): "
              f"K x m distinct runs split into the groups where there are that many {baseline} runs (marked "
              "distinct), else groups drawn with replacement from the runs there are (marked bootstrap, which "
              f"narrows the spread of a few runs). What the best-of-K column gains over the plain {baseline} column "
